@@ -152,7 +152,7 @@ def load_recording(path: str | os.PathLike, required: Sequence[str] = REQUIRED_C
 
 def _check_header(path: Path, names: list[str], required: Sequence[str]) -> None:
     if len(names) < 2:
-        raise RecordingError(f"{path}: not a CSV recording (header '{','.join(names)[:60]}' has no commas)")
+        raise RecordingError(f"{path}: not a CSV recording (first line {','.join(names)[:60]!r} has no commas)")
     duplicates = sorted({n for n in names if names.count(n) > 1})
     if duplicates:
         raise RecordingError(f"{path}: duplicate column {duplicates[0]!r} in the header")
@@ -206,8 +206,8 @@ def _check_time(path: Path, time_s: np.ndarray, header_line: int) -> None:
     bad = np.flatnonzero(np.diff(time_s) <= 0)
     if bad.size:
         row = int(bad[0]) + 1
-        raise RecordingError(f"{path}: line {header_line + 1 + row}: time_s {time_s[row]!r} does not "
-                             f"increase (previous {time_s[row - 1]!r})")
+        raise RecordingError(f"{path}: line {header_line + 1 + row}: time_s {float(time_s[row])!r} does not "
+                             f"increase (previous {float(time_s[row - 1])!r})")
 
 
 def write_recording(path: str | os.PathLike, columns: Mapping[str, Iterable[float]],

@@ -1,0 +1,152 @@
+"""Training data: a recording turned into causal features and drift targets, split by time block.
+
+The thermal drift changes over minutes, so fitting it at 10 Hz would spend the effort on noise:
+features and targets are averaged over ``block_s`` (10 s by default) after the causal features are
+computed at the full rate. Validation is a set of whole time blocks (or a separate recording),
+never random samples of the training run.
+"""
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field
+from typing import Any, Mapping, Sequence
+
+import numpy as np
+
+from gyronet.data import AXES, Recording, block_means, load_recording, split_by_time, time_blocks
+from gyronet.errors import GyronetError
+from gyronet.features import PAPER_FEATURES, FeatureExtractor, required_columns
+
+log = logging.getLogger(__name__)
+
+
+def static_rate_dps(recording: Recording, override: Sequence[float] | None = None) -> np.ndarray:
+    """The true rate during the static test (e.g. the Earth's rate on the sensor's axes), shape (3,).
+
+    From ``override`` if given, else from the recording's ``# static_rate_dps=x,y,z`` metadata line,
+    else zero: the compensator then learns the Earth's rate as part of the bias, as PX4 does.
+    """
+    if override is not None:
+        values = [float(v) for v in override]
+    elif "static_rate_dps" in recording.meta:
+        values = [float(v) for v in recording.meta["static_rate_dps"].split(",")]
+    else:
+        values = [0.0, 0.0, 0.0]
+    if len(values) != 3:
+        raise GyronetError(f"static_rate_dps needs 3 values (x, y, z), got {values}")
+    return np.asarray(values)
+
+
+@dataclass
+class Blocks:
+    """Block-averaged features ``x`` (m, k) and drift targets ``y`` (m, 3), with block mid-times."""
+
+    x: np.ndarray
+    y: np.ndarray
+    time_s: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.y)
+
+
+def featurize(recording: Recording, specs: Sequence[Mapping[str, Any]], fs_hz: float | None = None) -> np.ndarray:
+    """Causal features of a whole recording at its full rate, shape (n, len(specs))."""
+    missing = [c for c in required_columns(specs) if c not in recording.columns]
+    if missing:
+        raise GyronetError(f"{recording.path}: the features need column(s) {', '.join(missing)}")
+    extractor = FeatureExtractor(specs, fs_hz or recording.fs_hz)
+    return extractor.process(recording.columns)
+
+
+def to_blocks(time_s: np.ndarray, features: np.ndarray, target: np.ndarray, block_s: float) -> Blocks:
+    """Average features and targets over ``block_s`` blocks (partial blocks under half full dropped)."""
+    return Blocks(block_means(features, time_s, block_s), block_means(target, time_s, block_s),
+                  block_means(time_s, time_s, block_s))
+
+
+@dataclass
+class DriftData:
+    """A recording ready for training: features, targets, train/validation blocks.
+
+    Parameters
+    ----------
+    path
+        The training recording (CONTRACT.md section 1).
+    features
+        Feature specs (``gyronet.features``); the paper's T, dT/dt and T*dT/dt by default.
+    block_s
+        Averaging block for training, s.
+    val_fraction, n_blocks
+        Hold out ``val_fraction`` of the record as whole time blocks out of ``n_blocks``.
+    val_path
+        A separate validation recording instead (a different thermal history): preferred.
+    static_rate_dps
+        True rate during the test, deg/s per axis; see ``static_rate_dps()``.
+    """
+
+    path: str
+    features: list = field(default_factory=lambda: [dict(s) for s in PAPER_FEATURES])
+    block_s: float = 10.0
+    val_fraction: float = 0.2
+    n_blocks: int = 10
+    val_path: str | None = None
+    static_rate_dps: Sequence[float] | None = None
+
+    def __post_init__(self) -> None:
+        self.features = [dict(s) for s in self.features]
+        self.recording = load_recording(self.path)
+        self.fs_hz = self.recording.fs_hz
+        self.static_rate = static_rate_dps(self.recording, self.static_rate_dps)
+        full_x, full_y = self._full_rate(self.recording)
+        time_s = self.recording.time_s
+        if self.val_path:
+            val_rec = load_recording(self.val_path)
+            val_x, val_y = self._full_rate(val_rec)
+            self.train = to_blocks(time_s, full_x, full_y, self.block_s)
+            self.val = to_blocks(val_rec.time_s, val_x, val_y, self.block_s)
+            self.val_full = (val_rec.time_s, val_x, val_y)
+        else:
+            train_mask, val_mask = split_by_time(time_s, self.val_fraction, self.n_blocks)
+            # block means never straddle a split edge: average within each side separately
+            self.train = to_blocks(time_s[train_mask], full_x[train_mask], full_y[train_mask], self.block_s)
+            self.val = to_blocks(time_s[val_mask], full_x[val_mask], full_y[val_mask], self.block_s)
+            self.val_full = (time_s[val_mask], full_x[val_mask], full_y[val_mask])
+        self.temp_range_c = (float(self.recording.temp_c.min()), float(self.recording.temp_c.max()))
+        log.info("training data %s: %d samples at %.3g Hz, %d train / %d validation blocks of %g s",
+                 self.path, len(self.recording), self.fs_hz, len(self.train), len(self.val), self.block_s)
+        if len(self.train) < 10 or len(self.val) < 2:
+            raise GyronetError(f"{self.path}: too short to train on ({len(self.train)} training and "
+                               f"{len(self.val)} validation blocks of {self.block_s} s)")
+
+    def _full_rate(self, recording: Recording) -> tuple[np.ndarray, np.ndarray]:
+        x = featurize(recording, self.features, self.fs_hz)
+        y = recording.gyro_dps - static_rate_dps(recording, self.static_rate_dps)
+        return x, y
+
+    @property
+    def n_features(self) -> int:
+        return len(self.features)
+
+    @property
+    def feature_names(self) -> list[str]:
+        return FeatureExtractor(self.features, self.fs_hz).names
+
+    @property
+    def axes(self) -> tuple[str, ...]:
+        return AXES
+
+
+def block_rmse(time_s: np.ndarray, residual: np.ndarray, block_s: float = 60.0) -> np.ndarray:
+    """RMS over ``block_s`` blocks of the block-averaged residual, per axis (the contract's metric).
+
+    Blocks are formed on contiguous runs: a time-block split leaves gaps, and a block never
+    straddles one.
+    """
+    gaps = np.flatnonzero(np.diff(time_s) > 1.5 * np.median(np.diff(time_s))) + 1
+    pieces = [block_means(residual[a:b], time_s[a:b], block_s)
+              for a, b in zip([0, *gaps], [*gaps, len(time_s)]) if b - a > 1]
+    means = np.concatenate([p for p in pieces if len(p)]) if pieces else np.empty((0, residual.shape[1]))
+    return np.sqrt(np.mean(means**2, axis=0))
+
+
+__all__ = ["Blocks", "DriftData", "block_rmse", "featurize", "static_rate_dps", "to_blocks", "time_blocks"]

@@ -1,0 +1,166 @@
+"""Gaussian radial-basis network for gyro drift: features in, drift per axis out (deg/s).
+
+Two ways to use it:
+
+- the paper's RBF network: every input feeds the Gaussians, nothing else
+  (``linear=False, temp_degree=0, clamp=False``);
+- gyronet's default, a hybrid: a linear term in every input, a polynomial in temperature, and the
+  Gaussians on the inputs a thermal history fully covers (temperature), all evaluated inside the
+  trained box. A Gaussian fades to zero outside the data, so a plain RBF trained on a cooling run
+  has no idea what heating does; the linear rate terms carry that over.
+"""
+from __future__ import annotations
+
+import logging
+from typing import List, Optional, Tuple
+
+import torch
+from torch import Tensor, nn
+from torch.nn import functional
+
+log = logging.getLogger(__name__)
+
+_MIN_WIDTH = 1e-3
+
+
+class RBFNet(nn.Module):
+    """Gaussian RBF network with learnable centres and widths, plus optional linear and polynomial terms.
+
+    Parameters
+    ----------
+    n_inputs
+        Number of input features (columns of ``x``).
+    n_outputs
+        Number of gyro axes.
+    n_centers
+        Number of Gaussian units.
+    width_init
+        Initial width as a multiple of the mean distance from a centre to its nearest neighbour.
+    rbf_inputs
+        Indices of the inputs that feed the Gaussians; all when None.
+    linear
+        Add a linear term in every (normalised, unclamped) input.
+    temp_degree
+        Add powers 2..degree of the (clamped, normalised) temperature input; 0 or 1 for none.
+    temp_index
+        Which input is temperature.
+    clamp
+        Evaluate the Gaussians and the polynomial at inputs clamped to the training box.
+    """
+
+    def __init__(self, n_inputs: int, n_outputs: int = 3, n_centers: int = 32, width_init: float = 1.0,
+                 rbf_inputs: Optional[List[int]] = None, linear: bool = False, temp_degree: int = 0,
+                 temp_index: int = 0, clamp: bool = False):
+        super().__init__()
+        self.n_inputs, self.n_outputs, self.n_centers = n_inputs, n_outputs, n_centers
+        self.width_init = float(width_init)
+        self.min_width = _MIN_WIDTH
+        self.rbf_inputs: List[int] = list(range(n_inputs)) if rbf_inputs is None else [int(i) for i in rbf_inputs]
+        self.use_linear, self.temp_degree, self.temp_index, self.clamp = linear, int(temp_degree), temp_index, clamp
+        n_rbf = len(self.rbf_inputs)
+        dtype = torch.float64
+        self.register_buffer("x_mean", torch.zeros(n_inputs, dtype=dtype))
+        self.register_buffer("x_std", torch.ones(n_inputs, dtype=dtype))
+        self.register_buffer("z_low", torch.full((n_inputs,), -1e6, dtype=dtype))
+        self.register_buffer("z_high", torch.full((n_inputs,), 1e6, dtype=dtype))
+        self.register_buffer("y_mean", torch.zeros(n_outputs, dtype=dtype))
+        self.register_buffer("y_std", torch.ones(n_outputs, dtype=dtype))
+        self.register_buffer("rbf_index", torch.tensor(self.rbf_inputs, dtype=torch.long))
+        self.centers = nn.Parameter(torch.zeros(n_centers, n_rbf, dtype=dtype))
+        # width = softplus(raw) + min: always positive, gradient defined everywhere
+        self.raw_width = nn.Parameter(torch.zeros(n_centers, dtype=dtype))
+        self.head = nn.Linear(n_centers, n_outputs, dtype=dtype)
+        self.linear = nn.Linear(n_inputs, n_outputs, bias=False, dtype=dtype)
+        self.poly = nn.Linear(max(self.temp_degree - 1, 1), n_outputs, bias=False, dtype=dtype)
+        if not self.use_linear:
+            self.linear.weight.requires_grad_(False)
+            nn.init.zeros_(self.linear.weight)
+        if self.temp_degree < 2:
+            self.poly.weight.requires_grad_(False)
+            nn.init.zeros_(self.poly.weight)
+
+    def widths(self) -> Tensor:
+        """Gaussian widths in normalised input units, shape (n_centers,)."""
+        return functional.softplus(self.raw_width) + self.min_width
+
+    def parts(self, x: Tensor) -> Tuple[Tensor, Tensor, Tensor]:
+        """Gaussian activations, normalised inputs and temperature powers 2..degree, each (n, .)."""
+        z = (x - self.x_mean) / self.x_std
+        zc = torch.minimum(torch.maximum(z, self.z_low), self.z_high) if self.clamp else z
+        r = zc.index_select(1, self.rbf_index)
+        # phi_k = exp(-|r - c_k|^2 / (2 w_k^2))
+        phi = torch.exp(-0.5 * torch.cdist(r, self.centers).pow(2) / self.widths().pow(2))
+        temp = zc[:, self.temp_index:self.temp_index + 1]
+        powers = torch.cat([temp.pow(k) for k in range(2, max(self.temp_degree, 2) + 1)], dim=1)
+        return phi, z, powers
+
+    def basis(self, x: Tensor) -> Tensor:
+        """Every regressor the output layers combine, side by side."""
+        phi, z, powers = self.parts(x)
+        return torch.cat([phi, z, powers], dim=1)
+
+    def forward(self, x: Tensor) -> Tensor:
+        """Drift (deg/s), shape (n, n_outputs), from features ``x`` of shape (n, n_inputs), float64."""
+        phi, z, powers = self.parts(x)
+        y = self.head(phi) + self.linear(z) + self.poly(powers)
+        return y * self.y_std + self.y_mean
+
+    @torch.no_grad()
+    def init_from_data(self, x: Tensor, y: Tensor, generator: torch.Generator, ridge: float = 1e-6) -> None:
+        """Normalisation, training box, centres (k-means++ seeding), widths and a least-squares head."""
+        self.x_mean.copy_(x.mean(0))
+        self.x_std.copy_(x.std(0).clamp_min(1e-12))
+        self.y_mean.copy_(y.mean(0))
+        self.y_std.copy_(y.std(0).clamp_min(1e-12))
+        z = (x - self.x_mean) / self.x_std
+        self.z_low.copy_(z.min(0).values)
+        self.z_high.copy_(z.max(0).values)
+        r = z[:, self.rbf_index]
+        self.centers.copy_(_kmeans_pp(r, self.n_centers, generator))
+        nearest = torch.cdist(self.centers, self.centers).fill_diagonal_(float("inf")).min(1).values
+        width = (self.width_init * nearest.clamp_min(1e-3).mean()).clamp_min(2 * _MIN_WIDTH)
+        # inverse of softplus(raw) + min
+        self.raw_width.fill_(float(torch.log(torch.expm1(width - _MIN_WIDTH))))
+        self.refit_head(x, y, ridge)
+
+    @torch.no_grad()
+    def refit_head(self, x: Tensor, y: Tensor, ridge: float = 1e-6) -> None:
+        """Solve the output layer by ridge least squares for the current centres and widths."""
+        basis = self.basis(x)
+        n_phi = self.n_centers
+        keep = [True] * n_phi + [self.use_linear] * self.n_inputs + [self.temp_degree >= 2] * (basis.shape[1] - n_phi - self.n_inputs)
+        cols = torch.tensor(keep)
+        design = torch.cat([basis[:, cols], torch.ones(len(x), 1, dtype=x.dtype)], dim=1)
+        target = (y - self.y_mean) / self.y_std
+        gram = design.T @ design + ridge * len(x) * torch.eye(design.shape[1], dtype=x.dtype)
+        coef = torch.linalg.solve(gram, design.T @ target)
+        weights, bias = coef[:-1], coef[-1]
+        self.head.weight.copy_(weights[:n_phi].T)
+        self.head.bias.copy_(bias)
+        offset = n_phi
+        if self.use_linear:
+            self.linear.weight.copy_(weights[offset:offset + self.n_inputs].T)
+            offset += self.n_inputs
+        if self.temp_degree >= 2:
+            self.poly.weight.copy_(weights[offset:].T)
+
+
+def _kmeans_pp(points: Tensor, k: int, generator: torch.Generator, iterations: int = 10) -> Tensor:
+    """k-means++ seeding and a few Lloyd steps: centres where the data are, seeded explicitly."""
+    n = len(points)
+    if n <= k:
+        extra = points[torch.randint(n, (k - n,), generator=generator)] if k > n else points[:0]
+        return torch.cat([points, extra + 1e-3 * torch.randn(extra.shape, generator=generator, dtype=points.dtype)])
+    centers = points[torch.randint(n, (1,), generator=generator)]
+    for _ in range(k - 1):
+        dist = torch.cdist(points, centers).min(1).values.pow(2)
+        pick = torch.multinomial(dist / dist.sum() if dist.sum() > 0 else torch.ones(n, dtype=points.dtype),
+                                 1, generator=generator)
+        centers = torch.cat([centers, points[pick]])
+    for _ in range(iterations):
+        label = torch.cdist(points, centers).argmin(1)
+        for j in range(k):
+            members = points[label == j]
+            if len(members):
+                centers[j] = members.mean(0)
+    return centers

@@ -1,0 +1,129 @@
+"""One training run end to end: fit, bundle, evaluate on held-out recordings, log, report.
+
+``scripts/train.py`` and ``scripts/diagnose.py`` call ``train_run`` with plain Python objects, so
+the same run works from a test or a notebook without Hydra.
+"""
+from __future__ import annotations
+
+import json
+import logging
+from pathlib import Path
+from typing import Any, Callable, Mapping, Sequence
+
+import numpy as np
+import torch
+
+from gyronet.compensator import Compensator, build_meta
+from gyronet.data import AXES, load_recording, load_truth, truth_path
+from gyronet.dataset import DriftData
+from gyronet.export import save_bundle
+from gyronet.train import evaluate, fit
+
+log = logging.getLogger(__name__)
+
+
+def model_info(model: torch.nn.Module) -> dict[str, Any]:
+    """Class and constructor settings of a model, for ``meta.json`` and hparams."""
+    info: dict[str, Any] = {"class": type(model).__name__}
+    for key in ("n_centers", "width_init", "rbf_inputs", "use_linear", "temp_degree", "clamp", "degree"):
+        if hasattr(model, key):
+            info[key] = getattr(model, key)
+    info["n_parameters"] = int(sum(p.numel() for p in model.parameters()) + sum(
+        b.numel() for n, b in model.named_buffers() if n in ("coef", "weight")))
+    return info
+
+
+def kalman_stage(kalman_cfg: Mapping[str, Any] | None, model: torch.nn.Module, data: DriftData) -> dict | None:
+    """Identify the Kalman stage from the network's residual on the training record, if enabled."""
+    if not kalman_cfg or not kalman_cfg.get("enabled", False):
+        return None
+    from gyronet.kalman import KalmanStage, identify
+
+    options = {k: v for k, v in kalman_cfg.items() if k != "enabled"}
+    recording = data.recording
+    residual = recording.gyro_dps - Compensator(model, _meta(model, data)).drift(recording.columns)
+    return KalmanStage(identify(residual, data.fs_hz), **options).to_dict()
+
+
+def _meta(model: torch.nn.Module, data: DriftData) -> dict[str, Any]:
+    from gyronet.data import GYRO_COLUMNS
+    from gyronet.features import required_columns
+
+    inputs = list(dict.fromkeys([*required_columns(data.features), *GYRO_COLUMNS]))
+    return build_meta(data.features, data.feature_names, data.fs_hz, data.temp_range_c, inputs,
+                      data.recording.checksum(), model_info(model))
+
+
+def evaluate_paths(bundle_dir: Path, paths: Sequence[str], block_s: float) -> dict[str, dict]:
+    """Evaluate a saved bundle on each held-out recording (with its ground truth when it has one)."""
+    results = {}
+    for path in paths:
+        recording = load_recording(path)
+        truth = load_truth(path).columns if truth_path(path).is_file() else None
+        results[str(path)] = evaluate(Compensator.load(bundle_dir), recording, truth, block_s)
+    return results
+
+
+def train_run(data: DriftData, model: torch.nn.Module, optim: Callable | None, out_dir: str | Path,
+              train_cfg: Mapping[str, Any], seed: int = 0, kalman_cfg: Mapping[str, Any] | None = None,
+              eval_paths: Sequence[str] = (), eval_block_s: float = 60.0, writer: Any = None,
+              hparams: Mapping[str, Any] | None = None) -> dict[str, Any]:
+    """Fit ``model`` on ``data``, write ``out_dir/compensator`` and ``out_dir/report.json``, log to ``writer``.
+
+    Returns the final metrics; ``val/rmse_dps`` is what a sweep minimises.
+    """
+    out_dir = Path(out_dir)
+    metrics = fit(model, data, optim, seed=seed, writer=writer, **train_cfg)
+    log.info("validation 60 s RMSE: %s deg/s", ", ".join(f"{a}={metrics[f'val/rmse_{a}_dps']:.4g}" for a in AXES))
+    bundle_dir = save_bundle(model, _meta(model, data), out_dir / "compensator", kalman_stage(kalman_cfg, model, data))
+    evaluations = evaluate_paths(bundle_dir, eval_paths, eval_block_s)
+    report = {"model": model_info(model), "train_path": data.path, "metrics": metrics,
+              "eval": {p: {k: v for k, v in r.items() if k != "_arrays"} for p, r in evaluations.items()}}
+    for path, result in evaluations.items():
+        metrics.update(_eval_metrics(result, prefix="eval" if len(evaluations) == 1 else f"eval_{Path(path).stem}"))
+    if writer is not None:
+        _log_run(writer, metrics, evaluations, hparams or model_info(model))
+    (out_dir / "report.json").write_text(json.dumps(_jsonable(report), indent=2) + "\n")
+    return metrics
+
+
+def _eval_metrics(result: Mapping[str, Any], prefix: str) -> dict[str, float]:
+    metrics = {}
+    for stage in ("raw", "compensated", "noise_only"):
+        for axis, values in result["allan"].get(stage, {}).items():
+            metrics[f"{prefix}/{stage}_arw_{axis}_deg_rthr"] = values["arw_deg_rthr"]
+            metrics[f"{prefix}/{stage}_bias_instability_{axis}_deg_hr"] = values["bias_instability_deg_hr"]
+    if "truth" in result:
+        for axis in AXES:
+            metrics[f"{prefix}/residual_{axis}_dps"] = result["truth"]["residual_dps"][axis]
+            metrics[f"{prefix}/ratio_to_floor_{axis}"] = result["truth"]["ratio_to_floor"][axis]
+    return metrics
+
+
+def _log_run(writer: Any, metrics: Mapping[str, float], evaluations: Mapping[str, dict],
+             hparams: Mapping[str, Any]) -> None:
+    from gyronet import plots, tb
+    from gyronet.allan import plot_allan
+
+    tb.log_scalars(writer, {k: v for k, v in metrics.items() if np.isfinite(v)})
+    for path, result in evaluations.items():
+        name = Path(path).stem
+        arrays = result["_arrays"]
+        tb.log_figure(writer, f"eval/{name}/allan", plot_allan(
+            {stage: result["allan"][stage] for stage in result["allan"]}, title=f"Allan deviation: {name}"))
+        tb.log_figure(writer, f"eval/{name}/raw_vs_compensated", plots.raw_vs_compensated(arrays))
+        tb.log_figure(writer, f"eval/{name}/residual_vs_temperature", plots.residual_vs_temperature(arrays))
+    tb.log_hparams(writer, hparams, {k: v for k, v in metrics.items() if k.startswith("val/") and np.isfinite(v)})
+    writer.flush()
+
+
+def _jsonable(value: Any) -> Any:
+    if isinstance(value, dict):
+        return {str(k): _jsonable(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_jsonable(v) for v in value]
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    if isinstance(value, (np.floating, np.integer)):
+        return value.item()
+    return value

@@ -1,0 +1,89 @@
+"""RBFNet and the baselines: gradients, TorchScript round trip, PX4 clamping, extrapolation."""
+import torch
+from torch.testing import assert_close
+
+from gyronet.baselines import LinearFeatures, TempPolynomial
+from gyronet.export import load_bundle, save_bundle
+from gyronet.model import RBFNet
+
+
+def _data(n=400, seed=0):
+    g = torch.Generator().manual_seed(seed)
+    x = torch.rand(n, 3, generator=g, dtype=torch.float64) * torch.tensor([100.0, 0.03, 3.0]) - torch.tensor([40.0, 0.015, 1.5])
+    y = torch.stack([torch.sin(x[:, 0] / 20), 0.01 * x[:, 0] + 5 * x[:, 1], x[:, 2]], 1)
+    return x, y
+
+
+def test_gradcheck_on_a_tiny_float64_net():
+    model = RBFNet(3, 2, n_centers=4, linear=True, temp_degree=3)
+    x, y = _data(20)
+    model.init_from_data(x, y[:, :2], torch.Generator().manual_seed(0))
+    names = ("centers", "raw_width", "head.weight")
+
+    def fn(*tensors):
+        return torch.func.functional_call(model, dict(zip(names, tensors)), (x[:5],))
+
+    inputs = tuple(dict(model.named_parameters())[n].detach().clone().requires_grad_(True) for n in names)
+    assert torch.autograd.gradcheck(fn, inputs)
+
+
+def test_widths_stay_positive():
+    model = RBFNet(3, 3, n_centers=5)
+    model.raw_width.data.fill_(-50.0)
+    assert torch.all(model.widths() > 0)
+
+
+def test_script_save_load_round_trip(tmp_path):
+    x, y = _data()
+    for model in (RBFNet(3, 3, 8, rbf_inputs=[0], linear=True, temp_degree=3, clamp=True), RBFNet(3, 3, 8),
+                  TempPolynomial(3), LinearFeatures(3)):
+        if hasattr(model, "fit_closed_form"):
+            model.fit_closed_form(x, y)
+        else:
+            model.init_from_data(x, y, torch.Generator().manual_seed(1))
+        save_bundle(model, {"features": [], "fs_hz": 10.0, "temp_range_c": [-40, 60]}, tmp_path / "b")
+        loaded, meta, kalman = load_bundle(tmp_path / "b")
+        assert meta["fs_hz"] == 10.0 and kalman is None
+        with torch.no_grad():
+            assert_close(loaded(x), model(x), rtol=0, atol=1e-12)
+
+
+def test_head_least_squares_fits_a_linear_target_exactly():
+    x, _ = _data()
+    y = x @ torch.tensor([[0.01, 0.0, 1.0], [3.0, -2.0, 0.0], [0.0, 0.5, 0.2]], dtype=torch.float64) + 0.3
+    model = RBFNet(3, 3, 4, linear=True)
+    model.init_from_data(x, y, torch.Generator().manual_seed(0))
+    model.refit_head(x, y, ridge=1e-14)
+    with torch.no_grad():
+        assert_close(model(x), y, rtol=0, atol=1e-6)
+
+
+def test_hybrid_extrapolates_the_rate_linearly_but_the_plain_rbf_does_not():
+    x, _ = _data()
+    x[:, 1] = -x[:, 1].abs()  # trained on cooling only
+    x[:, 2] = x[:, 0] * x[:, 1]
+    y = (8.0 * x[:, 1:2]).repeat(1, 3)
+    heating = x.clone()
+    heating[:, 1] = -heating[:, 1]
+    heating[:, 2] = heating[:, 0] * heating[:, 1]
+    hybrid = RBFNet(3, 3, 8, rbf_inputs=[0], linear=True, temp_degree=3, clamp=True)
+    plain = RBFNet(3, 3, 8)
+    for model in (hybrid, plain):
+        model.init_from_data(x, y, torch.Generator().manual_seed(0))
+    with torch.no_grad():
+        err_hybrid = (hybrid(heating) - 8.0 * heating[:, 1:2]).abs().max()
+        err_plain = (plain(heating) - 8.0 * heating[:, 1:2]).abs().max()
+    assert err_hybrid < 1e-3 < err_plain
+
+
+def test_px4_polynomial_clamps_to_the_calibrated_range():
+    temp = torch.linspace(-20, 40, 200, dtype=torch.float64)
+    x = torch.stack([temp, torch.zeros_like(temp), torch.zeros_like(temp)], 1)
+    y = torch.stack([1e-4 * temp**3, 0.01 * temp, -0.02 * temp + 1], 1)
+    model = TempPolynomial(3)
+    model.fit_closed_form(x, y)
+    assert float(model.temp_ref_c) == 10.0
+    hot = torch.tensor([[80.0, 0.0, 0.0], [40.0, 0.0, 0.0]], dtype=torch.float64)
+    out = model(hot)
+    assert_close(out[0], out[1])
+    assert_close(out[1], torch.tensor([6.4, 0.4, 0.2], dtype=torch.float64), rtol=0, atol=1e-9)
