@@ -1,0 +1,40 @@
+"""Shared fixtures: seeded simulated recordings with known drift and noise, and a trained bundle."""
+from pathlib import Path
+
+import pytest
+
+from gyronet.sim import simulate, write_simulation
+
+ROOT = Path(__file__).resolve().parents[1]
+SHARED = ROOT.parent / "shared"
+FAST_FS_HZ = 2.0  # the drift is slow; 2 Hz keeps tests quick while the noise stays white
+
+
+@pytest.fixture(scope="session")
+def paper_csv(tmp_path_factory) -> Path:
+    """The paper's 12.7 h chamber profile, sensor 0, at 2 Hz."""
+    path = tmp_path_factory.mktemp("sim") / "paper.csv"
+    write_simulation(simulate("paper", fs_hz=FAST_FS_HZ, seed=1, sensor_seed=0), path)
+    return path
+
+
+@pytest.fixture(scope="session")
+def cycle_csv(tmp_path_factory) -> Path:
+    """The same sensor through a different thermal history (down and up): held-out data."""
+    path = tmp_path_factory.mktemp("sim") / "cycle.csv"
+    write_simulation(simulate("cycle", fs_hz=FAST_FS_HZ, seed=2, sensor_seed=0), path)
+    return path
+
+
+@pytest.fixture(scope="session")
+def bundle(tmp_path_factory, paper_csv) -> Path:
+    """A small default-model bundle trained on ``paper_csv``, for the tests that consume bundles."""
+    from gyronet.dataset import DriftData
+    from gyronet.model import RBFNet
+    from gyronet.pipeline import train_run
+
+    out = tmp_path_factory.mktemp("run")
+    data = DriftData(str(paper_csv))
+    model = RBFNet(data.n_features, 3, 8, rbf_inputs=[0], linear=True, temp_degree=3, clamp=True)
+    train_run(data, model, None, out, {"max_epochs": 300, "progress": False})
+    return out / "compensator"

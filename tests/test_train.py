@@ -1,0 +1,89 @@
+"""Training end to end: the script, the bundle, TensorBoard event files, and held-out quality."""
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+from gyronet.compensator import Compensator
+from gyronet.data import load_recording, load_truth
+from gyronet.train import lr_at, residual_report
+
+from conftest import ROOT
+
+
+def _train(tmp_path, *overrides):
+    cmd = [sys.executable, "scripts/train.py", *overrides, f"hydra.run.dir={tmp_path}", "train.progress=false"]
+    proc = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    return json.loads((tmp_path / "report.json").read_text())
+
+
+def test_lr_schedule_warms_up_then_decays():
+    lrs = [lr_at(s, 1000, 0.01, warmup_steps=50) for s in range(1000)]
+    assert lrs[0] < lrs[49] == pytest.approx(0.01)
+    assert all(a >= b for a, b in zip(lrs[50:], lrs[51:]))
+    assert lrs[-1] == pytest.approx(0.0005, rel=0.01)
+
+
+def test_train_script_writes_bundle_report_and_tensorboard(tmp_path, paper_csv, cycle_csv):
+    report = _train(tmp_path, f"data.path={paper_csv}", f"eval.paths=[{cycle_csv}]", "train.max_epochs=60")
+    assert {"model.pt", "meta.json"} <= {p.name for p in (tmp_path / "compensator").iterdir()}
+    meta = json.loads((tmp_path / "compensator" / "meta.json").read_text())
+    assert meta["feature_names"] == ["temp_c", "temp_rate_c_per_s", "temp_x_rate_c2_per_s"]
+    assert meta["fs_hz"] == 2.0 and meta["temp_range_c"][0] < -35 and meta["temp_range_c"][1] > 60
+    assert len(meta["data_sha256"]) == 64
+    assert np.isfinite(report["metrics"]["val/rmse_dps"])
+    held_out = report["eval"][str(cycle_csv)]
+    assert set(held_out["allan"]) == {"raw", "compensated", "noise_only"}
+    events = EventAccumulator(str(tmp_path / "tb"), size_guidance={"images": 0}).Reload()
+    scalars, images = set(events.Tags()["scalars"]), set(events.Tags()["images"])
+    assert {"train/loss", "val/rmse_dps", "eval/compensated_bias_instability_x_deg_hr",
+            "eval/raw_arw_z_deg_rthr", "eval/ratio_to_floor_y"} <= scalars
+    assert {"eval/cycle/allan", "eval/cycle/raw_vs_compensated", "eval/cycle/residual_vs_temperature"} <= images
+    assert len(events.Scalars("train/loss")) >= 2
+
+
+def test_baseline_and_paper_models_train(tmp_path, paper_csv):
+    for model in ("poly3", "lsq", "rbf"):
+        report = _train(tmp_path / model, f"data.path={paper_csv}", f"model={model}", "train.max_epochs=30")
+        assert report["model"]["class"] in {"TempPolynomial", "LinearFeatures", "RBFNet"}
+
+
+def test_training_is_deterministic_with_a_seed(tmp_path, paper_csv):
+    first = _train(tmp_path / "a", f"data.path={paper_csv}", "train.max_epochs=50", "seed=3")
+    second = _train(tmp_path / "b", f"data.path={paper_csv}", "train.max_epochs=50", "seed=3")
+    assert first["metrics"] == second["metrics"]
+
+
+def test_compensate_matches_live_one_sample_at_a_time(bundle, cycle_csv, tmp_path):
+    out = tmp_path / "o.csv"
+    proc = subprocess.run([sys.executable, "scripts/compensate.py", f"model={bundle}", f"input={cycle_csv}",
+                           f"output={out}"], cwd=ROOT, capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr
+    offline = load_recording(out, required=("time_s", "gyro_x_dps")).gyro_dps
+    recording = load_recording(cycle_csv)
+    live = Compensator.load(bundle)
+    rows = [live.process({k: v[i:i + 1] for k, v in recording.columns.items()}).rate_dps for i in range(2000)]
+    np.testing.assert_allclose(np.vstack(rows), offline[:2000], rtol=0, atol=1e-9)
+
+
+def test_out_of_range_temperature_is_flagged(bundle, cycle_csv):
+    recording = load_recording(cycle_csv)
+    columns = dict(recording.columns)
+    columns["temp_c"] = columns["temp_c"] + 30.0  # far hotter than anything trained on
+    comp = Compensator.load(bundle)
+    out = comp.process(columns)
+    assert out.out_of_range.any() and comp.n_out_of_range == int(out.out_of_range.sum())
+    assert np.all(np.isfinite(out.rate_dps))
+
+
+def test_default_model_removes_drift_on_a_different_thermal_history(bundle, cycle_csv):
+    """Issue 3's goal on held-out data, scored against ground truth (a small fast bundle here)."""
+    recording = load_recording(cycle_csv)
+    out = Compensator.load(bundle).process(recording.columns)
+    truth = load_truth(cycle_csv).columns
+    ratio = residual_report(recording.time_s, out.rate_dps, truth)["ratio_to_floor"]
+    assert max(ratio.values()) < 2.0, ratio
