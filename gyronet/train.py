@@ -53,7 +53,7 @@ def validation_metrics(model: torch.nn.Module, data: DriftData, full_rate: bool 
 
 def fit(model: torch.nn.Module, data: DriftData, optim: Callable | None = None, max_epochs: int = 3000,
         patience: int = 400, eval_every: int = 25, seed: int = 0, weight_decay: float = 0.0,
-        writer: Any = None, progress: bool = True) -> dict[str, float]:
+        writer: Any = None, progress: bool = True, threads: int | None = 1) -> dict[str, float]:
     """Fit ``model`` to ``data.train`` and return the final metrics (``val/rmse_dps`` first of all).
 
     Parameters
@@ -72,7 +72,14 @@ def fit(model: torch.nn.Module, data: DriftData, optim: Callable | None = None, 
         L2 penalty on the output weights, relative to the loss on normalised targets.
     writer
         Optional ``SummaryWriter`` for ``train/loss`` and ``val/rmse_dps`` curves.
+    progress
+        Show a tqdm bar.
+    threads
+        Torch threads. One by default: the problem is a few thousand points, where more threads
+        only add overhead; sweeps get their parallelism from jobs running side by side.
     """
+    if threads:
+        torch.set_num_threads(threads)
     torch.manual_seed(seed)
     x = torch.as_tensor(data.train.x, dtype=torch.float64)
     y = torch.as_tensor(data.train.y, dtype=torch.float64)
