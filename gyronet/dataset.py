@@ -82,6 +82,8 @@ class DriftData:
         A separate validation recording instead (a different thermal history): preferred.
     static_rate_dps
         True rate during the test, deg/s per axis; see ``static_rate_dps()``.
+    rate_tau_s
+        If given, the time constant of every ``rate`` feature (a single knob for sweeps).
     """
 
     path: str
@@ -91,9 +93,14 @@ class DriftData:
     n_blocks: int = 10
     val_path: str | None = None
     static_rate_dps: Sequence[float] | None = None
+    rate_tau_s: float | None = None
 
     def __post_init__(self) -> None:
         self.features = [dict(s) for s in self.features]
+        if self.rate_tau_s is not None:
+            for spec in self.features:
+                if spec["kind"] == "rate":
+                    spec["tau_s"] = float(self.rate_tau_s)
         self.recording = load_recording(self.path)
         self.fs_hz = self.recording.fs_hz
         self.static_rate = static_rate_dps(self.recording, self.static_rate_dps)

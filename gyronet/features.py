@@ -37,7 +37,7 @@ log = logging.getLogger(__name__)
 
 PAPER_FEATURES: list[dict[str, Any]] = [
     {"kind": "temp"},
-    {"kind": "rate", "tau_s": 30.0},
+    {"kind": "rate", "tau_s": 5.0},
     {"kind": "product"},
 ]
 
@@ -173,7 +173,7 @@ class FeatureExtractor:
         self._play.clear()
         for i, spec in enumerate(self.specs):
             if spec["kind"] == "rate":
-                self._filters[i] = _RateTracker(float(spec.get("tau_s", 30.0)), self.dt_s)
+                self._filters[i] = _RateTracker(float(spec.get("tau_s", 5.0)), self.dt_s)
             elif spec["kind"] == "lag" or (spec["kind"] == "column" and float(spec.get("tau_s", 0)) > 0):
                 self._filters[i] = _Lag(float(spec["tau_s"]), self.dt_s)
 
