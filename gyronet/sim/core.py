@@ -1,0 +1,273 @@
+"""Put the pieces together: ``simulate()`` a static gyro in a chamber, ``write_simulation()``."""
+from __future__ import annotations
+
+import dataclasses
+import json
+import logging
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Mapping, Sequence, TypeVar
+
+import numpy as np
+
+from gyronet.data import AXES, truth_path, write_recording
+from gyronet.errors import GyronetError
+from gyronet.sim._csv import write_csv
+from gyronet.sim.effects import apply_effect
+from gyronet.sim.noise import NoiseSpec, earth_rate_dps, gravity_g, gyro_noise_dps, quantise
+from gyronet.sim.profiles import chamber_profile
+from gyronet.sim.sensor import N_AXES, SensorModel, draw_sensor, per_axis
+
+log = logging.getLogger(__name__)
+
+SENSOR_NAME = "gyronet-sim"
+
+
+@dataclass(frozen=True)
+class TemperatureSpec:
+    """The sensor's temperature reading: true die temperature + noise, quantised.
+
+    Attributes
+    ----------
+    lsb_c
+        Quantisation step of ``temp_c``, degC (0: none).
+    noise_c
+        Standard deviation of the reading noise, degC.
+    """
+
+    lsb_c: float = 0.0625
+    noise_c: float = 0.02
+
+
+@dataclass(frozen=True)
+class EarthSpec:
+    """Where the sensor sits and how it is turned.
+
+    Attributes
+    ----------
+    latitude_deg
+        Latitude, degrees North.
+    orientation_deg
+        (roll, pitch, yaw) of the sensor from East-North-Up, degrees; see
+        :func:`gyronet.sim.noise.body_from_enu`.
+    rate_deg_hr
+        Earth rate, deg/h (0 removes it from the true rate).
+    """
+
+    latitude_deg: float = 45.0
+    orientation_deg: Sequence[float] = (0.0, 0.0, 0.0)
+    rate_deg_hr: float = 15.041
+
+
+@dataclass(frozen=True)
+class AccelSpec:
+    """The accelerometer: gravity on the static sensor plus white noise.
+
+    Attributes
+    ----------
+    enabled
+        Write ``acc_x_g``, ``acc_y_g``, ``acc_z_g``.
+    noise_g
+        Standard deviation of the accelerometer noise, g.
+    lsb_g
+        Quantisation step, g (0: none).
+    """
+
+    enabled: bool = True
+    noise_g: float = 0.002
+    lsb_g: float = 0.0
+
+
+@dataclass
+class Simulation:
+    """A simulated recording and its ground truth.
+
+    Attributes
+    ----------
+    recording
+        The CONTRACT.md columns: ``time_s``, ``temp_c``, ``gyro_{x,y,z}_dps``, ``acc_{x,y,z}_g``
+        (when on) and any auxiliary columns of the effects. Arrays of shape (n,).
+    truth
+        ``time_s``, ``die_temp_c``, ``chamber_temp_c``, ``drift_{x,y,z}_dps`` (all deterministic
+        drift, effects included), ``noise_{x,y,z}_dps`` (what was added, quantisation included),
+        ``true_rate_{x,y,z}_dps`` (Earth rate and rate steps) and ``effect_<name>_{x,y,z}_dps``.
+        ``gyro = true_rate + drift + noise`` per axis.
+    meta
+        The ``# key=value`` lines of the recording.
+    sensor
+        The drawn sensor coefficients.
+    effects
+        Names of the effects switched on, in the order applied.
+    """
+
+    recording: dict[str, np.ndarray]
+    truth: dict[str, np.ndarray]
+    meta: dict[str, str]
+    sensor: SensorModel
+    effects: list[str] = field(default_factory=list)
+
+
+Spec = TypeVar("Spec")
+
+
+def _spec(cls: type[Spec], value: Spec | Mapping[str, Any] | None, what: str) -> Spec:
+    """A spec dataclass from itself, a mapping of its fields, or None (the defaults)."""
+    if value is None:
+        return cls()
+    if isinstance(value, cls):
+        return value
+    known = [f.name for f in dataclasses.fields(cls)]  # type: ignore[arg-type]
+    unknown = sorted(set(value) - set(known))
+    if unknown:
+        raise GyronetError(f"unknown {what} option(s) {', '.join(unknown)}; known: {', '.join(known)}")
+    return cls(**value)
+
+
+def rate_steps_dps(time_s: np.ndarray, rate_steps: Sequence[Mapping[str, Any]] | None) -> np.ndarray:
+    """True rotation steps: each ``{start_s, duration_s, rate_dps: [x, y, z]}`` adds its rate on
+    ``start_s <= t < start_s + duration_s``. Shape (n, 3), deg/s."""
+    out = np.zeros((len(time_s), N_AXES))
+    for k, step in enumerate(rate_steps or []):
+        missing = {"start_s", "duration_s", "rate_dps"} - set(step)
+        if missing or len(step) != 3:
+            raise GyronetError(f"rate_steps[{k}] needs exactly start_s, duration_s, rate_dps; "
+                               f"got {dict(step)}")
+        on = (time_s >= step["start_s"]) & (time_s < step["start_s"] + step["duration_s"])
+        out[on] += per_axis(step["rate_dps"], f"rate_steps[{k}].rate_dps")
+    return out
+
+
+def _columns(prefix: str, values: np.ndarray, suffix: str = "_dps") -> dict[str, np.ndarray]:
+    return {f"{prefix}_{axis}{suffix}": values[:, i] for i, axis in enumerate(AXES)}
+
+
+def simulate(profile: str = "paper", fs_hz: float = 10.0, seed: int = 0, sensor_seed: int = 0,
+             duration_s: float | None = None, profile_options: Mapping[str, Any] | None = None,
+             noise: NoiseSpec | Mapping[str, Any] | None = None,
+             temperature: TemperatureSpec | Mapping[str, Any] | None = None,
+             sensor: Mapping[str, Any] | None = None,
+             earth: EarthSpec | Mapping[str, Any] | None = None,
+             accel: AccelSpec | Mapping[str, Any] | None = None,
+             rate_steps: Sequence[Mapping[str, Any]] | None = None,
+             effects: Mapping[str, Mapping[str, Any] | None] | None = None) -> Simulation:
+    """Simulate a static three-axis MEMS gyro in a thermal chamber.
+
+    Parameters
+    ----------
+    profile
+        Chamber profile kind: ``paper``, ``cycle``, ``random`` or ``constant``.
+    fs_hz
+        Sampling rate, Hz.
+    seed
+        Seed of everything that is not the sensor: the random profile, the noise, the temperature
+        reading, the accelerometer, the effects' auxiliary channels.
+    sensor_seed
+        Seed of the sensor's coefficients (:func:`gyronet.sim.sensor.draw_sensor`).
+    duration_s
+        Record length, s (see :func:`gyronet.sim.profiles.chamber_profile`).
+    profile_options
+        The profile's own options, e.g. ``{"rate_c_per_min": 2.0}``, and ``corner_s``.
+    noise, temperature, earth, accel
+        :class:`NoiseSpec`, :class:`TemperatureSpec`, :class:`EarthSpec`, :class:`AccelSpec` or a
+        mapping of their fields.
+    sensor
+        Overrides of the drawn sensor (``swing_dps`` or any :class:`SensorModel` field).
+    rate_steps
+        True rotation steps, see :func:`rate_steps_dps`.
+    effects
+        ``{name: {params}}`` of :mod:`gyronet.sim.effects`; a None value or ``enabled: false``
+        leaves the effect off.
+
+    Returns
+    -------
+    Simulation
+    """
+    noise_spec = _spec(NoiseSpec, noise, "noise")
+    temp_spec = _spec(TemperatureSpec, temperature, "temperature")
+    earth_spec = _spec(EarthSpec, earth, "earth")
+    accel_spec = _spec(AccelSpec, accel, "accel")
+    time_s, chamber_c = chamber_profile(profile, fs_hz, np.random.default_rng([int(seed), 1]),
+                                        duration_s=duration_s, **dict(profile_options or {}))
+    n = len(time_s)
+    model = draw_sensor(sensor_seed, **dict(sensor or {}))
+    die_c = model.die_temperature_c(time_s, chamber_c, fs_hz)
+    die_rate_c_per_s = np.gradient(die_c, time_s)
+    temp_rng = np.random.default_rng([int(seed), 2])
+    temp_c = quantise(die_c + temp_spec.noise_c * temp_rng.standard_normal(n), temp_spec.lsb_c)
+
+    drift = model.drift_dps(die_c, die_rate_c_per_s)
+    truth_effects: dict[str, np.ndarray] = {}
+    aux_columns: dict[str, np.ndarray] = {}
+    applied = []
+    for name, params in (effects or {}).items():
+        params = dict(params or {})
+        if not params.pop("enabled", True):
+            continue
+        out = apply_effect(name, params, time_s, fs_hz, die_c, chamber_c, seed)
+        clash = set(out.columns) & ({"time_s", "temp_c"} | set(aux_columns))
+        if clash or any(c.startswith(("gyro_", "acc_")) for c in out.columns):
+            raise GyronetError(f"effect {name!r}: column name(s) {sorted(out.columns)} already used")
+        drift = drift + out.drift_dps
+        truth_effects.update(_columns(f"effect_{name}", out.drift_dps))
+        aux_columns.update(out.columns)
+        applied.append(name)
+
+    earth_dps = earth_rate_dps(earth_spec.latitude_deg, earth_spec.orientation_deg, earth_spec.rate_deg_hr)
+    true_rate = earth_dps[None, :] + rate_steps_dps(time_s, rate_steps)
+    ideal = true_rate + drift
+    gyro = quantise(ideal + gyro_noise_dps(n, fs_hz, noise_spec, seed), noise_spec.lsb_dps)
+    added_noise = gyro - ideal  # the noise actually added, quantisation error included
+
+    recording = {"time_s": time_s, "temp_c": temp_c, **_columns("gyro", gyro)}
+    if accel_spec.enabled:
+        acc_rng = np.random.default_rng([int(seed), 4])
+        acc = gravity_g(earth_spec.orientation_deg)[None, :] \
+            + accel_spec.noise_g * acc_rng.standard_normal((n, N_AXES))
+        recording.update(_columns("acc", quantise(acc, accel_spec.lsb_g), suffix="_g"))
+    recording.update(aux_columns)
+    truth = {"time_s": time_s, "die_temp_c": die_c, "chamber_temp_c": chamber_c,
+             **_columns("drift", drift), **_columns("noise", added_noise),
+             **_columns("true_rate", true_rate), **truth_effects}
+    meta = {"fs_hz": f"{fs_hz:g}", "sensor": SENSOR_NAME, "seed": str(seed),
+            "sensor_seed": str(sensor_seed), "profile": profile,
+            "effects": ",".join(applied) or "none",
+            "arw_deg_rthr": _triple(noise_spec.arw_deg_rthr),
+            "bias_instability_deg_hr": _triple(noise_spec.bias_instability_deg_hr),
+            "rrw_deg_hr_rthr": _triple(noise_spec.rrw_deg_hr_rthr),
+            # the true rate of the static test (the Earth's), which training subtracts: a user
+            # writes it from the latitude and the mounting, as here
+            "static_rate_dps": ",".join(f"{v:.9g}" for v in earth_dps)}
+    log.info("simulated %d samples (%.2f h, profile %s, effects %s)", n, n / fs_hz / 3600, profile,
+             meta["effects"])
+    return Simulation(recording, truth, meta, model, applied)
+
+
+def _triple(value: Any) -> str:
+    return "/".join(f"{v:g}" for v in per_axis(value, "noise"))
+
+
+def write_simulation(sim: Simulation, path: str | os.PathLike, fast: bool = True) -> tuple[Path, Path]:
+    """Write the recording to ``path`` (``F.csv``) and its truth to ``F.truth.csv``.
+
+    Parameters
+    ----------
+    sim
+        The output of :func:`simulate`.
+    path
+        The recording's CSV path.
+    fast
+        Use the vectorised writer (:mod:`gyronet.sim._csv`, same format and 9 significant digits
+        of each column's largest value); False uses :func:`gyronet.data.write_recording`
+        (``%.9g``, several times slower).
+
+    Returns
+    -------
+    recording_path, truth_path
+    """
+    writer = write_csv if fast else write_recording
+    truth_meta = {**sim.meta, "truth": "1", "sensor_model": json.dumps(sim.sensor.to_dict())}
+    recording = writer(path, sim.recording, sim.meta)
+    truth = writer(truth_path(path), sim.truth, truth_meta)
+    log.info("wrote %s and %s", recording, truth)
+    return Path(recording), Path(truth)

@@ -1,0 +1,189 @@
+"""The simulated sensor: its die temperature and its deterministic thermal drift.
+
+Die temperature (degC), from the chamber temperature ``T_ch``::
+
+    T_die = lag(T_ch, thermal_tau_s) + self_heating_c * (1 - exp(-t / warmup_tau_s))
+
+where ``lag`` is a first-order low-pass, ``dy/dt = (u - y) / tau``, started settled at
+``T_ch(0)`` (the sensor was powered on after soaking in the chamber).
+
+Drift of axis ``a`` (deg/s), with ``x = (T_die - ref_c) / scale_c`` (-1..1 over -40..60 degC)
+and ``Tdot = dT_die/dt`` the true die rate (degC/s)::
+
+    drift_a = offset_a + p1_a x + p2_a x^2 + p3_a x^3                  (cubic)
+            + knee_a * tanh((T_die - knee_c_a) / knee_width_c_a)      (what a cubic cannot follow)
+            + (g_a + h_a x) * Tdot                                    (dT/dt and T * dT/dt terms)
+
+``g`` and ``h`` are ``rate_gain_deg_per_c`` and ``rate_temp_gain_deg_per_c`` (deg/s per
+degC/s). Every coefficient is drawn from ``sensor_seed`` alone (:func:`draw_sensor`), so one seed
+is one physical sensor whatever its thermal history.
+"""
+from __future__ import annotations
+
+import dataclasses
+import logging
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from scipy import signal
+
+from gyronet.errors import GyronetError
+
+log = logging.getLogger(__name__)
+
+N_AXES = 3
+SPEC_RANGE_C = (-40.0, 60.0)  # the range over which ``swing_dps`` is measured
+
+
+def per_axis(value: Any, name: str) -> np.ndarray:
+    """A scalar or three values as a float array of shape (3,)."""
+    array = np.asarray(value, dtype=float)
+    if array.ndim == 0:
+        return np.full(N_AXES, float(array))
+    if array.shape != (N_AXES,):
+        raise GyronetError(f"{name} must be one number or three (x, y, z), got {value!r}")
+    return array.copy()
+
+
+def first_order_lag(values: np.ndarray, fs_hz: float, tau_s: float) -> np.ndarray:
+    """First-order low-pass ``dy/dt = (u - y) / tau``, started settled at ``values[0]``.
+
+    Parameters
+    ----------
+    values
+        Input, shape (n,), sampled at ``fs_hz``.
+    fs_hz
+        Sampling rate, Hz.
+    tau_s
+        Time constant, s; 0 returns a copy of the input.
+
+    Returns
+    -------
+    numpy.ndarray
+        Output, shape (n,).
+    """
+    values = np.asarray(values, dtype=float)
+    if tau_s <= 0:
+        return values.copy()
+    decay = np.exp(-1.0 / (fs_hz * tau_s))
+    # y[k] = a y[k-1] + (1 - a) u[k],  y[-1] = u[0]
+    out, _ = signal.lfilter([1.0 - decay], [1.0, -decay], values, zi=[decay * values[0]])
+    return out
+
+
+@dataclass(frozen=True)
+class SensorModel:
+    """The coefficients of one simulated sensor; arrays have one entry per axis (x, y, z)."""
+
+    thermal_tau_s: float
+    self_heating_c: float
+    warmup_tau_s: float
+    offset_dps: np.ndarray
+    poly_dps: np.ndarray  # shape (3, 3): coefficients of x, x^2, x^3
+    knee_dps: np.ndarray
+    knee_c: np.ndarray
+    knee_width_c: np.ndarray
+    rate_gain_deg_per_c: np.ndarray
+    rate_temp_gain_deg_per_c: np.ndarray
+    ref_c: float = 10.0
+    scale_c: float = 50.0
+
+    def static_bias_dps(self, temp_c: np.ndarray) -> np.ndarray:
+        """Bias at a settled die temperature (no dT/dt terms), shape (n, 3), deg/s."""
+        temp_c = np.asarray(temp_c, dtype=float)[:, None]
+        x = (temp_c - self.ref_c) / self.scale_c
+        cubic = self.offset_dps + x * self.poly_dps[:, 0] + x**2 * self.poly_dps[:, 1] \
+            + x**3 * self.poly_dps[:, 2]
+        return cubic + self.knee_dps * np.tanh((temp_c - self.knee_c) / self.knee_width_c)
+
+    def drift_dps(self, die_temp_c: np.ndarray, die_rate_c_per_s: np.ndarray) -> np.ndarray:
+        """The drift formula of the module docstring, shape (n, 3), deg/s."""
+        x = (np.asarray(die_temp_c, dtype=float)[:, None] - self.ref_c) / self.scale_c
+        rate = np.asarray(die_rate_c_per_s, dtype=float)[:, None]
+        # (g + h x) * dT/dt
+        rate_term = (self.rate_gain_deg_per_c + self.rate_temp_gain_deg_per_c * x) * rate
+        return self.static_bias_dps(die_temp_c) + rate_term
+
+    def swing_dps(self) -> np.ndarray:
+        """Peak-to-peak static bias over -40..60 degC, shape (3,), deg/s."""
+        bias = self.static_bias_dps(np.linspace(*SPEC_RANGE_C, 1001))
+        return bias.max(axis=0) - bias.min(axis=0)
+
+    def die_temperature_c(self, time_s: np.ndarray, chamber_c: np.ndarray, fs_hz: float) -> np.ndarray:
+        """True die temperature: the lagged chamber plus self-heating since power-on (t = 0), degC."""
+        warm = self.self_heating_c * -np.expm1(-(time_s - time_s[0]) / self.warmup_tau_s)
+        return first_order_lag(chamber_c, fs_hz, self.thermal_tau_s) + warm
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain numbers and lists, for JSON metadata."""
+        return {k: (v.tolist() if isinstance(v, np.ndarray) else v)
+                for k, v in dataclasses.asdict(self).items()}
+
+
+def draw_sensor(sensor_seed: int, swing_dps: Any = None, **overrides: Any) -> SensorModel:
+    """Draw one sensor's coefficients from its own seed.
+
+    Parameters
+    ----------
+    sensor_seed
+        Seed of this sensor; the thermal history and the noise never touch this stream.
+    swing_dps
+        Peak-to-peak static bias over -40..60 degC per axis, deg/s; by default drawn in
+        [1.2, 3.8] deg/s. The cubic and knee coefficients are scaled to reach it.
+    **overrides
+        Any :class:`SensorModel` field, replacing the drawn value (applied after the swing
+        scaling), e.g. ``rate_gain_deg_per_c=0`` to switch the dT/dt term off.
+
+    Returns
+    -------
+    SensorModel
+        Time constants a few hundred s, 1.5-4 degC of self-heating, dT/dt terms of 0.05-0.3 deg/s
+        at 1 degC/min, a tanh knee that leaves a cubic fit a misfit of a few % of the swing.
+    """
+    rng = np.random.default_rng([int(sensor_seed), 7001])
+    sign = lambda: rng.choice([-1.0, 1.0], size=N_AXES)  # noqa: E731
+    poly = np.column_stack([sign() * rng.uniform(0.4, 1.0, N_AXES),
+                            rng.normal(0.0, 0.4, N_AXES), rng.normal(0.0, 0.4, N_AXES)])
+    x = (np.linspace(*SPEC_RANGE_C, 1001)[:, None] - 10.0) / 50.0
+    cubic = x * poly[:, 0] + x**2 * poly[:, 1] + x**3 * poly[:, 2]
+    # the tanh knee: 10-18 % of the cubic's swing each way (a cubic misfit of a few % of the swing)
+    knee = sign() * rng.uniform(0.10, 0.18, N_AXES) * np.ptp(cubic, axis=0)
+    # g of 5-12 deg/degC is 0.08-0.2 deg/s at 1 degC/min; |h| <= 0.4 |g| keeps g + h x at
+    # 0.05-0.28 deg/s over -40..60 degC
+    rate_gain = sign() * rng.uniform(5.0, 12.0, N_AXES)
+    model = SensorModel(
+        thermal_tau_s=float(rng.uniform(200.0, 500.0)),
+        self_heating_c=float(rng.uniform(1.5, 4.0)),
+        warmup_tau_s=float(rng.uniform(300.0, 900.0)),
+        offset_dps=rng.uniform(-1.0, 1.0, N_AXES),
+        poly_dps=poly,
+        knee_dps=knee,
+        knee_c=rng.uniform(-25.0, 45.0, N_AXES),
+        knee_width_c=rng.uniform(4.0, 10.0, N_AXES),
+        rate_gain_deg_per_c=rate_gain,
+        rate_temp_gain_deg_per_c=sign() * rng.uniform(0.1, 0.4, N_AXES) * np.abs(rate_gain),
+    )
+    target = rng.uniform(1.2, 3.8, N_AXES) if swing_dps is None else per_axis(swing_dps, "swing_dps")
+    scale = target / model.swing_dps()
+    model = dataclasses.replace(model, poly_dps=model.poly_dps * scale[:, None],
+                                knee_dps=model.knee_dps * scale)
+    return _override(model, overrides)
+
+
+def _override(model: SensorModel, overrides: dict[str, Any]) -> SensorModel:
+    fields = {f.name: f for f in dataclasses.fields(SensorModel)}
+    unknown = sorted(set(overrides) - set(fields))
+    if unknown:
+        raise GyronetError(f"unknown sensor option(s) {', '.join(unknown)}; known: swing_dps, "
+                           f"{', '.join(fields)}")
+    changes: dict[str, Any] = {}
+    for name, value in overrides.items():
+        current = getattr(model, name)
+        if isinstance(current, np.ndarray) and current.ndim == 2:
+            changes[name] = np.broadcast_to(np.asarray(value, dtype=float), current.shape).copy()
+        elif isinstance(current, np.ndarray):
+            changes[name] = per_axis(value, f"sensor.{name}")
+        else:
+            changes[name] = float(value)
+    return dataclasses.replace(model, **changes)
