@@ -1,0 +1,131 @@
+"""What a framing parser yields: a good ``Sample`` or a ``Fault``, and a ``FaultCounter``.
+
+Both framings (LP-BUS and CSV lines) share the checks that do not depend on the framing: every
+value finite, time strictly increasing (``SampleCheck``).
+"""
+from __future__ import annotations
+
+import math
+from collections import Counter
+from dataclasses import dataclass, field
+from typing import Iterable, Mapping
+
+# Every reason a Fault can carry, with what it means. Parsers and the reader use only these.
+FAULT_REASONS: dict[str, str] = {
+    "garbage": "bytes that are not part of any frame or line (skipped up to the next header)",
+    "bad_checksum": "LP-BUS frame whose LRC does not match its bytes",
+    "bad_footer": "LP-BUS frame whose LRC matches but that does not end in 0x0D 0x0A",
+    "truncated": "frame or line cut short: the next one starts inside it, or the stream ended in it",
+    "bad_length": "LP-BUS sensor-data frame whose length does not fit the configured fields",
+    "nan": "a value is NaN or infinite",
+    "bad_field_count": "CSV line with more cells than the header",
+    "non_numeric": "CSV cell that is not a number",
+    "no_header": "CSV line before any header line",
+    "time_not_increasing": "time_s not after the previous good sample's",
+    "port_lost": "the serial port failed or disappeared (the reader reopens it)",
+}
+
+EXCERPT_BYTES = 32
+
+
+@dataclass(frozen=True)
+class Sample:
+    """One good sample.
+
+    Attributes
+    ----------
+    time_s
+        Sample time, s.
+    values
+        Every other channel by its CONTRACT.md column name (``temp_c``, ``gyro_x_dps``, ...).
+    """
+
+    time_s: float
+    values: Mapping[str, float]
+
+    def row(self) -> dict[str, float]:
+        """``time_s`` and the values as one dict of columns."""
+        return {"time_s": self.time_s, **self.values}
+
+
+@dataclass(frozen=True)
+class Fault:
+    """Something in the stream that is not a good sample.
+
+    Attributes
+    ----------
+    reason
+        One of ``FAULT_REASONS``.
+    raw
+        An excerpt (at most ``EXCERPT_BYTES``) of the offending bytes, for the log.
+    detail
+        A few words for a person (which cell, which value).
+    """
+
+    reason: str
+    raw: bytes = b""
+    detail: str = ""
+
+    def __post_init__(self) -> None:
+        if self.reason not in FAULT_REASONS:
+            raise ValueError(f"unknown fault reason {self.reason!r}")
+        if len(self.raw) > EXCERPT_BYTES:
+            object.__setattr__(self, "raw", bytes(self.raw[:EXCERPT_BYTES]))
+
+    def __str__(self) -> str:
+        extra = f" ({self.detail})" if self.detail else ""
+        return f"{self.reason}{extra}: {self.raw.hex(' ')}" if self.raw else f"{self.reason}{extra}"
+
+
+@dataclass
+class FaultCounter:
+    """Counts faults by reason (and good samples), for the end-of-run summary."""
+
+    counts: Counter = field(default_factory=Counter)
+    n_samples: int = 0
+
+    def add(self, item: Sample | Fault) -> None:
+        """Count one parser output."""
+        if isinstance(item, Fault):
+            self.counts[item.reason] += 1
+        else:
+            self.n_samples += 1
+
+    def update(self, items: Iterable[Sample | Fault]) -> None:
+        """Count several parser outputs."""
+        for item in items:
+            self.add(item)
+
+    @property
+    def n_faults(self) -> int:
+        return int(sum(self.counts.values()))
+
+    def as_dict(self) -> dict[str, int]:
+        """Fault counts by reason, the reasons sorted, zero counts left out."""
+        return {reason: int(self.counts[reason]) for reason in sorted(self.counts) if self.counts[reason]}
+
+    def summary(self) -> str:
+        """One line: good samples, then faults by reason."""
+        faults = ", ".join(f"{k}={v}" for k, v in self.as_dict().items()) or "none"
+        return f"{self.n_samples} good samples; faults: {faults}"
+
+
+class SampleCheck:
+    """The framing-independent checks: finite values, strictly increasing time.
+
+    Keeps the time of the last good sample, across reconnections, so a replayed or stale sample
+    is refused.
+    """
+
+    def __init__(self) -> None:
+        self.last_time_s: float | None = None
+
+    def check(self, time_s: float, values: Mapping[str, float], raw: bytes = b"") -> Sample | Fault:
+        """A ``Sample`` when the values pass, else the ``Fault`` that says why."""
+        for name, value in (("time_s", time_s), *values.items()):
+            if not math.isfinite(value):
+                return Fault("nan", raw, f"{name}={value}")
+        if self.last_time_s is not None and not time_s > self.last_time_s:
+            return Fault("time_not_increasing", raw, f"time_s={time_s!r} after {self.last_time_s!r}")
+        self.last_time_s = time_s
+        return Sample(float(time_s), dict(values))

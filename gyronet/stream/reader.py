@@ -1,0 +1,134 @@
+"""Read a serial port into a framing parser; survive the port going away. The only importer of ``serial``.
+
+Ports are opened with ``serial.serial_for_url``, so a device path (``/dev/ttyUSB0``, a pty or a
+symlink to one) and pyserial's URLs (``loop://``, ``socket://``) all work.
+"""
+from __future__ import annotations
+
+import logging
+import time
+from typing import Callable, Iterator, Protocol
+
+import serial
+
+from gyronet.stream.events import Fault, Sample
+
+log = logging.getLogger(__name__)
+
+PORT_ERRORS = (serial.SerialException, OSError)
+DEFAULT_BAUD = 921600  # LPMS USB sensors' factory setting (LP-Research's C client opens at 921600)
+
+
+class Parser(Protocol):
+    """What ``read_samples`` needs of a framing parser."""
+
+    def feed(self, data: bytes) -> list[Sample | Fault]: ...
+
+    def flush(self) -> list[Sample | Fault]: ...
+
+
+def open_port(url: str, baud: int = DEFAULT_BAUD, timeout_s: float = 0.05) -> serial.SerialBase:
+    """Open a port (device path or pyserial URL) for reading with a short timeout.
+
+    Raises
+    ------
+    serial.SerialException
+        When it cannot be opened.
+    """
+    return serial.serial_for_url(url, baudrate=baud, timeout=timeout_s)
+
+
+def read_samples(port: serial.SerialBase | None, parser: Parser, *, url: str | None = None,
+                 baud: int = DEFAULT_BAUD, timeout_s: float = 0.05,
+                 should_stop: Callable[[], bool] | None = None, backoff_s: float = 0.1,
+                 max_backoff_s: float = 2.0, give_up_s: float | None = None, chunk_bytes: int = 4096,
+                 sleep: Callable[[float], None] = time.sleep) -> Iterator[Sample | Fault]:
+    """Yield the samples and faults that the bytes arriving on ``port`` make, in order.
+
+    Each read takes what is waiting (at least one byte, or nothing after ``timeout_s``), so a
+    sample is yielded as soon as its last byte arrives. When the port fails (``SerialException``
+    or ``OSError``), a ``Fault("port_lost")`` is yielded, the parser is flushed (a frame cut by
+    the loss is a ``truncated`` fault) and the port is reopened from ``url`` with exponential
+    backoff. The parser keeps its state (CSV header, last time) across the gap.
+
+    Parameters
+    ----------
+    port
+        An open serial-like port (``read``, ``in_waiting``, ``close``), or None to open ``url``.
+        The reader owns it from here on and closes it when it stops.
+    parser
+        A framing parser (``LpBusParser``, ``CsvLineParser``).
+    url
+        Where to (re)open the port; default ``port.port``. Without one, a lost port ends the
+        iteration.
+    baud, timeout_s
+        Settings for (re)opening.
+    should_stop
+        Polled between reads and between reconnection attempts; True ends the iteration
+        (without flushing the parser: a frame in flight is not a fault).
+    backoff_s, max_backoff_s
+        First and longest wait between reconnection attempts, s.
+    give_up_s
+        Stop after the port has been gone this long, s; None retries until ``should_stop``.
+    chunk_bytes
+        Most bytes taken in one read.
+    sleep
+        Waits between attempts (a test passes a fake).
+    """
+    stop = should_stop or (lambda: False)
+    url = url or getattr(port, "port", None)
+    try:
+        while not stop():
+            if port is None:
+                port = _reopen(url, baud, timeout_s, stop, backoff_s, max_backoff_s, give_up_s, sleep)
+                if port is None:
+                    return
+            try:
+                data = port.read(min(max(1, port.in_waiting), chunk_bytes))
+            except PORT_ERRORS as err:
+                log.warning("port %s lost: %s", url, err)
+                yield Fault("port_lost", detail=str(err)[:80])
+                yield from parser.flush()
+                _close_quietly(port)
+                port = None
+                if url is None:
+                    return
+                continue
+            if data:
+                yield from parser.feed(data)
+    finally:
+        if port is not None:
+            _close_quietly(port)
+
+
+def _reopen(url: str | None, baud: int, timeout_s: float, stop: Callable[[], bool], backoff_s: float,
+            max_backoff_s: float, give_up_s: float | None, sleep: Callable[[float], None],
+            ) -> serial.SerialBase | None:
+    """Open ``url``, retrying with exponential backoff; None when stopped or given up."""
+    if url is None:
+        return None
+    delay, waited_s, attempt = backoff_s, 0.0, 0
+    while not stop():
+        try:
+            port = open_port(url, baud, timeout_s)
+        except PORT_ERRORS as err:
+            attempt += 1
+            if attempt == 1:
+                log.info("waiting for port %s (%s)", url, err)
+        else:
+            log.info("port %s open", url)
+            return port
+        if give_up_s is not None and waited_s >= give_up_s:
+            log.error("port %s still gone after %.1f s: giving up", url, waited_s)
+            return None
+        sleep(delay)
+        waited_s += delay
+        delay = min(2.0 * delay, max_backoff_s)
+    return None
+
+
+def _close_quietly(port: serial.SerialBase) -> None:
+    try:
+        port.close()
+    except PORT_ERRORS:  # closing a port that is already gone
+        pass

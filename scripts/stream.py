@@ -1,0 +1,22 @@
+"""Compensate a live sensor stream: python scripts/stream.py model=D/compensator port=P baud=B protocol=lpbus output=O.csv."""
+import hydra
+from omegaconf import DictConfig, OmegaConf
+
+from gyronet.errors import exit_on_error
+from gyronet.stream import LpBusLayout
+from gyronet.stream.live import interrupt_on_sigterm, run_stream
+
+
+@hydra.main(version_base="1.3", config_path="../conf/deploy", config_name="stream")
+@exit_on_error
+def main(cfg: DictConfig) -> None:
+    options = OmegaConf.to_container(cfg, resolve=True)
+    interrupt_on_sigterm()
+    run_stream(options["model"], options["port"], options["output"], options["protocol"], int(options["baud"]),
+               LpBusLayout(**options["lpbus"]), options["max_samples"], options["duration_s"],
+               float(options["allan_every_s"]), options["tb_dir"], options["summary"],
+               float(options["read_timeout_s"]), options["reconnect"])
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,206 @@
+"""End to end: emulate_sensor.py -> pty -> stream.py, as subprocesses, with faults mixed in.
+
+The subprocess tests start Python with torch twice each (about 20-30 s) and are marked slow;
+``test_run_stream_in_process_equals_offline`` runs the same loop in-process for every test run.
+The live output must equal the offline path (``Compensator.process`` on the good samples as they
+read after their trip through the framing) and the fault counts must equal the emulator's log.
+"""
+import json
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from gyronet.compensator import Compensator
+from gyronet.data import GYRO_COLUMNS, load_recording, write_recording
+from gyronet.stream import LpBusLayout
+
+ROOT = Path(__file__).resolve().parents[1]
+N_SAMPLES = 400
+OUT_OF_RANGE_TEMP_C = 150.0
+
+
+@pytest.fixture
+def short_recording(paper_csv, tmp_path) -> Path:
+    """The first 400 samples (200 s at 2 Hz) of the paper profile."""
+    recording = load_recording(paper_csv).slice(slice(0, N_SAMPLES))
+    return write_recording(tmp_path / "short.csv", recording.columns, recording.meta)
+
+
+@pytest.fixture
+def processes():
+    """Subprocesses started by a test; whatever is still running at the end is killed."""
+    started: list[subprocess.Popen] = []
+    yield started
+    for process in started:
+        if process.poll() is None:
+            process.kill()
+            process.wait(10)
+
+
+def start(processes, script: str, *overrides: str, tmp_path: Path, name: str) -> subprocess.Popen:
+    log = open(tmp_path / f"{name}.log", "w")
+    process = subprocess.Popen([sys.executable, f"scripts/{script}", *overrides,
+                                f"hydra.run.dir={tmp_path / name}"], cwd=ROOT, stdout=log, stderr=subprocess.STDOUT)
+    processes.append(process)
+    return process
+
+
+def expected_output(bundle, recording_path: Path, emulator_log: dict, protocol: str, n: int | None = None):
+    """Offline compensation of the good samples the emulator sent, as the stream decodes them."""
+    recording = load_recording(recording_path)
+    layout = LpBusLayout()
+    rows = []
+    for index in emulator_log["good_indices"][:n]:
+        row = {c: float(recording.columns[c][index]) for c in recording.columns}
+        if index in emulator_log["out_of_range_indices"]:
+            row["temp_c"] = OUT_OF_RANGE_TEMP_C
+        rows.append(layout.quantize(row) if protocol == "lpbus" else row)
+    compensator = Compensator.load(bundle)
+    compensator.reset()
+    columns = {c: np.array([row[c] for row in rows]) for c in compensator.input_columns}
+    out = compensator.process(columns)
+    return columns["time_s"], columns["temp_c"], out
+
+
+def read_output(path: Path) -> pd.DataFrame:
+    return pd.read_csv(path, comment="#")
+
+
+def assert_matches_offline(output: pd.DataFrame, time_s, temp_c, out) -> None:
+    assert len(output) == len(time_s) > 0
+    np.testing.assert_array_equal(output["time_s"].to_numpy(), time_s)
+    np.testing.assert_array_equal(output["temp_c"].to_numpy(), temp_c)
+    live = output[list(GYRO_COLUMNS)].to_numpy()
+    np.testing.assert_allclose(live, out.rate_dps, rtol=0, atol=1e-9)
+    np.testing.assert_array_equal(output["out_of_range"].to_numpy(), out.out_of_range.astype(int))
+
+
+def test_run_stream_in_process_equals_offline(bundle, short_recording, tmp_path):
+    """The live loop without the subprocesses: fast enough for every test run."""
+    import threading
+
+    from gyronet.stream import FaultPlan, plan_stream
+    from gyronet.stream.live import run_stream
+    from gyronet.stream.pty_sensor import PtySensor, play
+
+    recording = load_recording(short_recording)
+    faults = FaultPlan(garbage_rate=0.05, corrupt_rate=0.03, truncate_rate=0.03, nan_rate=0.02,
+                       out_of_range_every=37, out_of_range_temp_c=OUT_OF_RANGE_TEMP_C, drop_port_at_s=(80.0,), seed=9)
+    plan = plan_stream(recording.columns, "lpbus", faults)
+    link = tmp_path / "sensor"
+    sensor = PtySensor(link)
+
+    def emulate():
+        try:
+            play(plan, sensor, speed=0, reader_timeout_s=20, port_down_s=0.2)
+        finally:
+            sensor.close()
+            sensor.remove_link()
+
+    thread = threading.Thread(target=emulate, daemon=True)
+    thread.start()
+    summary = run_stream(bundle, str(link), tmp_path / "live.csv", allan_every_s=60, tb_dir=tmp_path / "tb",
+                         summary_path=tmp_path / "summary.json",
+                         reconnect={"backoff_s": 0.05, "max_backoff_s": 0.2, "give_up_s": 0.5})
+    thread.join(10)
+    expected_faults = dict(plan.log["expected_faults"])
+    expected_faults["port_lost"] += 1
+    assert summary["faults"] == expected_faults
+    assert summary["n_out_of_range"] == len(plan.log["out_of_range_indices"]) > 0
+    assert json.loads((tmp_path / "summary.json").read_text())["n_samples"] == len(plan.log["good_indices"])
+    assert set(summary["allan"]) == {"x", "y", "z"}
+    assert_matches_offline(read_output(tmp_path / "live.csv"),
+                           *expected_output(bundle, short_recording, plan.log, "lpbus"))
+
+
+def test_run_stream_refuses_fields_the_bundle_cannot_use(bundle, tmp_path):
+    from gyronet.errors import BundleError
+    from gyronet.stream.live import run_stream
+
+    with pytest.raises(BundleError, match="temp_c"):
+        run_stream(bundle, "loop://", tmp_path / "live.csv", layout=LpBusLayout(fields=("gyro", "acc")))
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("protocol", ["lpbus", "csv"])
+def test_live_stream_equals_offline_and_counts_faults(bundle, short_recording, tmp_path, processes, protocol):
+    link, emulator_log, summary = tmp_path / "sensor", tmp_path / "emulator.json", tmp_path / "summary.json"
+    emulator = start(processes, "emulate_sensor.py", f"input={short_recording}", f"protocol={protocol}",
+                     "speed=0", f"link={link}", f"log_file={emulator_log}", "faults.garbage_rate=0.05",
+                     "faults.corrupt_rate=0.03", "faults.truncate_rate=0.03", "faults.nan_rate=0.02",
+                     "faults.out_of_range_every=37", f"faults.out_of_range_temp_c={OUT_OF_RANGE_TEMP_C}",
+                     "faults.drop_port_at_s=[60,150]", "faults.gap_s_at=[[100,10]]", "faults.seed=4",
+                     "port_down_s=0.3", tmp_path=tmp_path, name="emulator")
+    stream = start(processes, "stream.py", f"model={bundle}", f"port={link}", f"protocol={protocol}",
+                   f"output={tmp_path / 'live.csv'}", f"summary={summary}", "reconnect.give_up_s=1",
+                   "reconnect.backoff_s=0.05", "allan_every_s=60", f"tb_dir={tmp_path / 'tb'}",
+                   tmp_path=tmp_path, name="stream")
+    assert stream.wait(90) == 0, (tmp_path / "stream.log").read_text()[-3000:]
+    assert emulator.wait(30) == 0, (tmp_path / "emulator.log").read_text()[-3000:]
+
+    log = json.loads(emulator_log.read_text())
+    result = json.loads(summary.read_text())
+    expected_faults = dict(log["expected_faults"])
+    expected_faults["port_lost"] += 1  # the emulator closing its port at the end
+    assert log["injected"]["port_drop"] == 2 and log["injected"]["gap"] == 20
+    assert result["faults"] == expected_faults
+    assert result["stopped"] == "port_gone"
+    assert result["n_samples"] == len(log["good_indices"])
+    assert result["n_out_of_range"] == len(log["out_of_range_indices"]) > 0
+    assert_matches_offline(read_output(tmp_path / "live.csv"), *expected_output(bundle, short_recording, log, protocol))
+    assert any((tmp_path / "tb").iterdir())
+
+
+@pytest.mark.slow
+def test_sigint_stops_cleanly_with_summary(bundle, short_recording, tmp_path, processes):
+    link, emulator_log, summary = tmp_path / "sensor", tmp_path / "emulator.json", tmp_path / "summary.json"
+    output = tmp_path / "live.csv"
+    emulator = start(processes, "emulate_sensor.py", f"input={short_recording}", "speed=10", f"link={link}",
+                     f"log_file={emulator_log}", "faults.garbage_rate=0.05", tmp_path=tmp_path, name="emulator")
+    stream = start(processes, "stream.py", f"model={bundle}", f"port={link}", f"output={output}",
+                   f"summary={summary}", "allan_every_s=0", tmp_path=tmp_path, name="stream")
+    deadline = time.monotonic() + 60
+    while time.monotonic() < deadline and (not output.exists() or len(output.read_text().splitlines()) < 32):
+        assert stream.poll() is None, (tmp_path / "stream.log").read_text()[-3000:]
+        time.sleep(0.1)
+    stream.send_signal(signal.SIGINT)
+    assert stream.wait(30) == 0, (tmp_path / "stream.log").read_text()[-3000:]
+    emulator.send_signal(signal.SIGINT)
+    emulator.wait(30)
+
+    result = json.loads(summary.read_text())
+    assert result["stopped"] == "interrupted"
+    live = read_output(output)
+    assert len(live) == result["n_samples"] >= 30
+    assert output.read_text().endswith("\n")  # no half-written line
+    log = json.loads(emulator_log.read_text())
+    assert_matches_offline(live, *expected_output(bundle, short_recording, log, "lpbus", n=len(live)))
+    assert "stopped (interrupted)" in (tmp_path / "stream.log").read_text()
+
+
+@pytest.mark.parametrize("how", ["max_samples", "interrupted"])
+def test_run_stream_stops_on_max_samples_and_ctrl_c(bundle, tmp_path, monkeypatch, how):
+    """Stop conditions, with the port replaced by a scripted stream of samples and faults."""
+    import gyronet.stream.live as live
+    from gyronet.stream import Fault, Sample
+
+    def scripted(*args, **kwargs):
+        yield Fault("garbage", b"\x00")
+        for i in range(20):
+            yield Sample(0.5 * i, {"temp_c": 25.0, "gyro_x_dps": 0.1, "gyro_y_dps": 0.2, "gyro_z_dps": 0.3})
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(live, "read_samples", scripted)
+    summary = live.run_stream(bundle, "/dev/null", tmp_path / "live.csv", allan_every_s=0,
+                              max_samples=5 if how == "max_samples" else None)
+    assert summary["stopped"] == how
+    assert summary["faults"] == {"garbage": 1}
+    rows = read_output(tmp_path / "live.csv")
+    assert len(rows) == summary["n_samples"] == (5 if how == "max_samples" else 20)
+    assert list(rows.columns) == ["time_s", *GYRO_COLUMNS, "temp_c", "out_of_range"]
