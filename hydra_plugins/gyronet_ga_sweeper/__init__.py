@@ -1,0 +1,1 @@
+"""A Hydra sweeper that tunes hyperparameters with a genetic algorithm (``hydra/sweeper=ga``)."""

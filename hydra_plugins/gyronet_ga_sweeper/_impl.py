@@ -1,0 +1,289 @@
+"""Ask, launch, tell: the GA sweeper's loop over generations.
+
+Each generation is bred by :mod:`gyronet.ga` from the previous one, sent to the launcher as
+one batch, and scored by the jobs' return values (lower is better; a failed job scores inf).
+Outputs in the sweep dir: ``ga_history.json`` after every generation, and at the end
+``optimization_results.yaml``, ``best/<best_artifact>/`` and TensorBoard curves in ``tb/``.
+"""
+from __future__ import annotations
+
+import logging
+import math
+import os
+import shutil
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any, Dict, List, Optional, Tuple
+
+import numpy as np
+from hydra.core.override_parser.overrides_parser import OverridesParser
+from hydra.core.plugins import Plugins
+from hydra.core.utils import JobReturn, JobStatus
+from hydra.errors import HydraException
+from hydra.plugins.sweeper import Sweeper
+from hydra.types import HydraContext, TaskFunction
+from omegaconf import DictConfig, OmegaConf
+from tqdm import tqdm
+
+from gyronet.ga import Individual, Param, next_generation, random_individual
+
+from ._history import HISTORY_FILE, Evaluation, Generation, History, params_key
+from ._space import parse_search_space, tidy, to_overrides
+from ._tensorboard import SweepWriter
+
+log = logging.getLogger(__name__)
+
+RESULTS_FILE = "optimization_results.yaml"
+
+
+class GASweepError(HydraException):
+    """The sweep cannot go on: too many failed jobs, or a history that does not match."""
+
+
+@dataclass(frozen=True)
+class GAOptions:
+    """The GA sweeper's options; see ``config.GASweeperConf`` for what each one means."""
+
+    population_size: int
+    generations: int
+    tournament_size: int
+    crossover_rate: float
+    mutation_rate: float
+    mutation_scale: float
+    elitism: int
+    seed: int
+    max_failure_rate: float
+    resume: bool
+    best_artifact: Optional[str]
+
+    def __post_init__(self) -> None:
+        if self.population_size < 1 or self.generations < 0:
+            raise ValueError("population_size must be >= 1 and generations >= 0")
+        if not 0.0 <= self.max_failure_rate <= 1.0:
+            raise ValueError(f"max_failure_rate must be in [0, 1], got {self.max_failure_rate}")
+
+
+# ---------------------------------------------------------------- scoring
+
+
+def score(ret: JobReturn) -> Tuple[float, str, Optional[str]]:
+    """Fitness, status and error text of a finished job (see ``_history.Evaluation``)."""
+    if ret.status != JobStatus.COMPLETED:
+        err = ret._return_value  # the exception; ret.return_value would re-raise it
+        return math.inf, "FAILED", f"{type(err).__name__}: {err}"
+    value = ret.return_value
+    if value is None or isinstance(value, (str, bytes, bool)):
+        return math.inf, "INVALID", f"returned {value!r}, not a number"
+    try:
+        fitness = float(value)
+    except (TypeError, ValueError):
+        return math.inf, "INVALID", f"returned {type(value).__name__} {value!r}, not a number"
+    if not math.isfinite(fitness):
+        return math.inf, "NONFINITE", f"returned {fitness}"
+    return fitness, "COMPLETED", None
+
+
+def job_dir(ret: JobReturn, sweep_dir: Path) -> Optional[str]:
+    """The job's output dir, relative to the sweep dir when inside it."""
+    out = OmegaConf.select(ret.hydra_cfg, "hydra.runtime.output_dir") if ret.hydra_cfg else None
+    if out is None:
+        return None
+    rel = os.path.relpath(out, sweep_dir.resolve())
+    return out if rel.startswith("..") else rel
+
+
+# ---------------------------------------------------------------- the sweeper
+
+
+class GASweeperImpl(Sweeper):
+    """Genetic-algorithm sweeper: one launcher batch per generation."""
+
+    def __init__(self, options: GAOptions, params: Optional[DictConfig]) -> None:
+        self.options = options
+        self.params: Dict[str, Any] = dict(params) if params else {}
+        self.config: Optional[DictConfig] = None
+        self.hydra_context: Optional[HydraContext] = None
+        self.launcher: Any = None
+        self.job_idx = 0
+
+    def setup(self, *, hydra_context: HydraContext, task_function: TaskFunction,
+              config: DictConfig) -> None:
+        self.config = config
+        self.hydra_context = hydra_context
+        self.launcher = Plugins.instance().instantiate_launcher(
+            config=config, hydra_context=hydra_context, task_function=task_function)
+        self.sweep_dir = Path(str(config.hydra.sweep.dir))
+
+    def sweep(self, arguments: List[str]) -> None:
+        assert self.config is not None and self.hydra_context is not None
+        parser = OverridesParser.create(config_loader=self.hydra_context.config_loader)
+        lines = [f"{k}={v}" for k, v in self.params.items()] + list(arguments)
+        space, fixed = parse_search_space(lines, parser)
+        if not space:
+            raise GASweepError("the GA sweeper has no search space: set hydra.sweeper.params or "
+                               "pass sweep overrides such as x='interval(0, 1)'")
+        self.sweep_dir.mkdir(parents=True, exist_ok=True)
+        history = self._start(space, fixed)
+        opts = self.options
+        log.info("GA sweep: population %d, generations %d, seed %d, into %s", opts.population_size,
+                 opts.generations, opts.seed, self.sweep_dir)
+        log.info("search space: %s; fixed: %s", ", ".join(_describe(p) for p in space), fixed)
+        tb = SweepWriter(self.sweep_dir / "tb")
+        # the bar shows on a terminal only: in a log file, the line per generation says it all
+        bar = tqdm(total=opts.generations, initial=len(history.generations), desc="GA",
+                   unit="gen", dynamic_ncols=True, disable=None)
+        try:
+            for index in range(len(history.generations), opts.generations):
+                gen = self._evaluate(index, self._breed(index, history, space), fixed, history)
+                history.generations.append(gen)
+                history.save(self.sweep_dir / HISTORY_FILE)
+                self._report(gen, history, tb, bar)
+                self._check_failures(gen)
+        finally:
+            bar.close()
+            tb.close()
+            if history.generations:
+                self._write_results(history)
+
+    # -- ask
+
+    def _start(self, space: List[Param], fixed: List[str]) -> History:
+        """A new history, or the one in the sweep dir when resuming."""
+        path = self.sweep_dir / HISTORY_FILE
+        space_json = [p.to_dict() for p in space]
+        new = History(space_json, fixed, options=asdict(self.options))
+        if not path.exists():
+            return new
+        if not self.options.resume:
+            log.warning("resume=false: starting over, %s will be overwritten", path)
+            return new
+        try:
+            old = History.load(path)
+        except (ValueError, KeyError, TypeError) as err:  # JSONDecodeError is a ValueError
+            raise GASweepError(f"cannot resume from {path}: {err}; use a new hydra.sweep.dir, "
+                               "or hydra.sweeper.resume=false to start over there") from err
+        if old.search_space != space_json:
+            raise GASweepError(
+                f"{path} is a sweep over another search space ({old.search_space}); "
+                "use a new hydra.sweep.dir, or hydra.sweeper.resume=false to start over there")
+        if old.fixed_overrides != fixed:
+            log.warning("resuming with fixed overrides %s, the history had %s", fixed,
+                        old.fixed_overrides)
+        old.fixed_overrides, old.options = fixed, asdict(self.options)
+        self.job_idx = old.next_job_idx()
+        log.info("resuming %s: %d generation(s) done", path, len(old.generations))
+        return old
+
+    def _breed(self, index: int, history: History, space: List[Param]) -> List[Individual]:
+        """Generation ``index``, drawn from its own rng so a resumed sweep repeats it exactly."""
+        rng = np.random.default_rng([self.options.seed, index])
+        opts = self.options
+        if index == 0:
+            population = [random_individual(space, rng) for _ in range(opts.population_size)]
+        else:
+            last = history.generations[-1]
+            population = next_generation(
+                [e.params for e in last.individuals], last.fitness, space, rng,
+                elitism=opts.elitism, tournament_size=opts.tournament_size,
+                crossover_rate=opts.crossover_rate, mutation_rate=opts.mutation_rate,
+                mutation_scale=opts.mutation_scale, size=opts.population_size)
+        return [tidy(ind, space) for ind in population]
+
+    # -- launch and tell
+
+    def _evaluate(self, index: int, population: List[Individual], fixed: List[str],
+                  history: History) -> Generation:
+        """Run the individuals not evaluated before as one batch; reuse the others' results."""
+        done = history.lookup()
+        to_run: Dict[str, List[int]] = {}  # params key -> positions in the population
+        for i, ind in enumerate(population):
+            if params_key(ind) not in done:
+                to_run.setdefault(params_key(ind), []).append(i)
+        batch = [fixed + to_overrides(population[pos[0]]) for pos in to_run.values()]
+        results: Dict[str, Evaluation] = {}
+        if batch:
+            self.validate_batch_is_legal(batch)
+            returns = self.launcher.launch(batch, initial_job_idx=self.job_idx)
+            for key, overrides, ret in zip(to_run, batch, returns):
+                fitness, status, error = score(ret)
+                if error:
+                    log.warning("job %d %s: %s", self.job_idx, status.lower(), error)
+                results[key] = Evaluation(population[to_run[key][0]], fitness, status,
+                                          self.job_idx, job_dir(ret, self.sweep_dir),
+                                          list(overrides), error)
+                self.job_idx += 1
+        individuals = []
+        for i, ind in enumerate(population):
+            key = params_key(ind)
+            first_run = key in results and to_run[key][0] == i
+            source = results[key] if key in results else done[key]
+            individuals.append(Evaluation(**{**asdict(source), "cached": not first_run}))
+        return Generation(index, individuals)
+
+    def _check_failures(self, gen: Generation) -> None:
+        summary = gen.summary()
+        if summary["jobs"] == 0 or summary["failed"] / summary["jobs"] <= self.options.max_failure_rate:
+            return
+        first = next(e for e in gen.individuals if e.failed and not e.cached)
+        msg = (f"GA sweep stopped: {summary['failed']} of {summary['jobs']} jobs failed in "
+               f"generation {gen.index}, more than max_failure_rate="
+               f"{self.options.max_failure_rate}. First failure, job {first.job_idx} "
+               f"({first.job_dir}): {first.error}. Every job is in "
+               f"{self.sweep_dir / HISTORY_FILE}; rerun to resume after fixing the cause.")
+        log.error(msg)
+        raise GASweepError(msg)
+
+    # -- report
+
+    def _report(self, gen: Generation, history: History, tb: SweepWriter, bar: tqdm) -> None:
+        s = gen.summary()
+        best = history.best()
+        best_so_far = best.fitness if best else math.inf
+        log.info("generation %d (%d of %d): best %.6g, mean %.6g, std %.6g; %d jobs, %d failed, "
+                 "%d reused; best so far %.6g (job %s)", gen.index, gen.index + 1,
+                 self.options.generations,
+                 s["best_fitness"], s["mean_fitness"], s["std_fitness"], s["jobs"], s["failed"],
+                 s["reused"], best_so_far, best.job_idx if best else None)
+        tb.generation(gen, best_so_far)
+        bar.set_postfix(best=f"{best_so_far:.4g}")
+        bar.update(1)
+
+    def _write_results(self, history: History) -> None:
+        """``optimization_results.yaml`` and ``best/<best_artifact>`` from the best job so far."""
+        best = history.best()
+        results = {
+            "name": "ga",
+            "best_evaluated_params": best.params if best else None,
+            "best_evaluated_result": best.fitness if best else None,
+            "best_overrides": best.overrides if best else None,
+            "best_job_dir": best.job_dir if best else None,
+            "best_generation": history.generation_of(best) if best else None,
+            "generations": len(history.generations),
+            "jobs": sum(g.summary()["jobs"] for g in history.generations),
+        }
+        OmegaConf.save(OmegaConf.create(results), self.sweep_dir / RESULTS_FILE)
+        if best is None:
+            log.warning("no job returned a finite value: no best parameters")
+            return
+        log.info("best value %.6g with %s", best.fitness, " ".join(to_overrides(best.params)))
+        self._copy_best(best)
+
+    def _copy_best(self, best: Evaluation) -> None:
+        name = self.options.best_artifact
+        if not name or best.job_dir is None:
+            return
+        src = self.sweep_dir / best.job_dir / name  # an absolute job_dir replaces the prefix
+        dst = self.sweep_dir / "best" / name
+        if not src.is_dir():
+            log.warning("the best job wrote no %s folder: nothing copied to %s", src, dst)
+            return
+        if dst.exists():
+            shutil.rmtree(dst)
+        shutil.copytree(src, dst)
+        log.info("copied %s to %s", src, dst)
+
+
+def _describe(p: Param) -> str:
+    if p.kind == "choice":
+        return f"{p.name} in {list(p.choices)}"
+    return f"{p.name} {p.kind} [{p.low}, {p.high}]"

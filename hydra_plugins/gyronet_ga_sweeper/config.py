@@ -1,0 +1,71 @@
+"""Options of the GA sweeper, registered in the ConfigStore as ``hydra/sweeper=ga``."""
+from dataclasses import dataclass, field
+from typing import Any, Dict, List, Optional
+
+from hydra.core.config_store import ConfigStore
+
+# An application may ship its default search space as conf/hydra/sweeper/params/default.yaml;
+# it fills hydra.sweeper.params and is skipped when absent. Select another with
+# hydra/sweeper/params=NAME.
+defaults: List[Any] = ["_self_", {"optional params": "default"}]
+
+
+@dataclass
+class GASweeperConf:
+    _target_: str = "hydra_plugins.gyronet_ga_sweeper.ga_sweeper.GASweeper"
+    defaults: List[Any] = field(default_factory=lambda: list(defaults))
+
+    # individuals per generation; each generation is one batch sent to the launcher, which
+    # runs at most its own number of workers at a time
+    population_size: int = 16
+
+    # generations to reach, counting those already in a resumed ga_history.json; the budget
+    # is about population_size * generations jobs (elites and repeats are not run again)
+    generations: int = 10
+
+    # individuals drawn at random for each parent tournament; the fittest wins
+    # (1 is random selection, larger is greedier)
+    tournament_size: int = 3
+
+    # probability that two parents are recombined (otherwise the children are copies)
+    crossover_rate: float = 0.9
+
+    # probability that each gene of a child is mutated
+    mutation_rate: float = 0.2
+
+    # standard deviation of a numeric mutation, as a fraction of the parameter's range
+    # (of its log range for tag(log, ...) parameters)
+    mutation_scale: float = 0.1
+
+    # how many of the best individuals pass unchanged to the next generation
+    elitism: int = 1
+
+    # seed of the GA's random numbers; generation g is drawn from (seed, g), so a resumed
+    # sweep continues exactly as an uninterrupted one would
+    seed: int = 0
+
+    # stop the sweep with an error when the fraction of failed jobs in a generation (an
+    # exception, or a return value that is not a number) exceeds this
+    max_failure_rate: float = 0.5
+
+    # continue from <sweep dir>/ga_history.json when it exists with the same search space
+    resume: bool = True
+
+    # folder in the best job's output dir to copy to <sweep dir>/best/ (null: copy nothing)
+    best_artifact: Optional[str] = "compensator"
+
+    # search space in Hydra's override grammar, e.g.
+    #   model.n_centers: int(interval(8, 64))
+    #   optim.lr: tag(log, interval(1e-4, 1e-1))
+    #   model: choice(rbf, poly3)
+    # non-sweep values are passed unchanged to every job; sweep overrides on the command
+    # line (x='interval(0, 1)') are added to it and win over the same key here
+    params: Dict[str, str] = field(default_factory=dict)
+
+
+ConfigStore.instance().store(
+    group="hydra/sweeper",
+    name="ga",
+    node=GASweeperConf,
+    provider="gyronet_ga_sweeper",
+)

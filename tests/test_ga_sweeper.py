@@ -1,0 +1,275 @@
+"""The GA sweeper plugin: discovery, search-space parsing, and multiruns of a tiny Hydra app."""
+from __future__ import annotations
+
+import json
+import math
+import os
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hydra.core.override_parser.overrides_parser import OverridesParser
+from hydra.core.plugins import Plugins
+from hydra.core.utils import JobReturn, JobStatus
+from hydra.plugins.sweeper import Sweeper
+from omegaconf import OmegaConf
+
+from hydra_plugins.gyronet_ga_sweeper._impl import score
+from hydra_plugins.gyronet_ga_sweeper._space import parse_search_space, tidy, to_overrides
+
+ROOT = Path(__file__).resolve().parents[1]
+
+# A stand-in for scripts/train.py: returns (x - 3)^2 + (y + 1)^2, writes compensator/ into
+# its output dir, logs each call, and fails or returns junk on request.
+APP = '''
+import os
+import hydra
+from hydra.core.hydra_config import HydraConfig
+
+
+@hydra.main(version_base="1.3", config_path="conf", config_name="config")
+def main(cfg):
+    out = HydraConfig.get().runtime.output_dir
+    with open(cfg.calls_log, "a") as f:
+        f.write(f"{cfg.x} {cfg.y}\\n")
+    os.makedirs(os.path.join(out, "compensator"), exist_ok=True)
+    with open(os.path.join(out, "compensator", "params.txt"), "w") as f:
+        f.write(f"{cfg.x} {cfg.y}")
+    if cfg.fail == "always" or (cfg.fail == "positive_x" and cfg.x > 0):
+        raise RuntimeError("boom")
+    value = (cfg.x - 3) ** 2 + (cfg.y + 1) ** 2
+    print(f"fitness={value!r}")
+    return value
+
+
+if __name__ == "__main__":
+    main()
+'''
+
+# the app's own default search space, found through the sweeper's optional params group
+SPACE = """\
+x: interval(-5, 5)
+y: interval(-5, 5)
+"""
+
+
+@pytest.fixture
+def app(tmp_path: Path) -> Path:
+    (tmp_path / "conf" / "hydra" / "sweeper" / "params").mkdir(parents=True)
+    (tmp_path / "app.py").write_text(APP)
+    (tmp_path / "conf" / "config.yaml").write_text(
+        f"x: 0.0\ny: 0.0\nfail: never\ncalls_log: {tmp_path / 'calls.log'}\n")
+    (tmp_path / "conf" / "hydra" / "sweeper" / "params" / "default.yaml").write_text(SPACE)
+    return tmp_path
+
+
+def _command(app: Path, overrides: tuple, sweep: str, multirun: bool) -> list[str]:
+    args = [sys.executable, str(app / "app.py")]
+    if multirun:
+        args += ["-m", "hydra/sweeper=ga", "hydra.sweeper.population_size=4",
+                 "hydra.sweeper.generations=2", f"hydra.sweep.dir={app / sweep}"]
+    return args + list(overrides)
+
+
+def _env() -> dict:
+    # the repo root on the path is how Hydra finds hydra_plugins without an install
+    return {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")])}
+
+
+def start_app(app: Path, *overrides: str, sweep: str = "sweep") -> subprocess.Popen:
+    """Start a GA multirun of the app in the background."""
+    return subprocess.Popen(_command(app, overrides, sweep, True), cwd=app, env=_env(),
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+
+
+def finish(proc: subprocess.Popen) -> None:
+    out, err = proc.communicate(timeout=120)
+    assert proc.returncode == 0, f"exit {proc.returncode}\n{out}\n{err}"
+
+
+def run_app(app: Path, *overrides: str, sweep: str = "sweep", multirun: bool = True,
+            check: bool = True) -> subprocess.CompletedProcess:
+    """Run the app (a GA multirun of 4 x 2 by default) and wait for it."""
+    proc = subprocess.run(_command(app, overrides, sweep, multirun), cwd=app, env=_env(),
+                          capture_output=True, text=True, timeout=120)
+    if check and proc.returncode != 0:
+        raise AssertionError(f"exit {proc.returncode}\n{proc.stdout}\n{proc.stderr}")
+    return proc
+
+
+def history(app: Path, sweep: str = "sweep") -> dict:
+    return json.loads((app / sweep / "ga_history.json").read_text())
+
+
+def calls(app: Path) -> int:
+    path = app / "calls.log"
+    return len(path.read_text().splitlines()) if path.exists() else 0
+
+
+# ---------------------------------------------------------------- in-process
+
+
+def test_plugin_is_discovered() -> None:
+    names = [f"{p.__module__}.{p.__name__}" for p in Plugins.instance().discover(Sweeper)]
+    assert "hydra_plugins.gyronet_ga_sweeper.ga_sweeper.GASweeper" in names
+
+
+def test_search_space_grammar() -> None:
+    lines = ["a=int(interval(8, 64))", "b=interval(1e-3, 1e-1)", "c=tag(log, interval(1e-4, 1e-1))",
+             "d=choice(relu, tanh)", "e=1,2,3", "f=range(0, 3)", "g=tag(log, int(interval(1, 1024)))",
+             "data.path=F.csv", "b=interval(0, 1)", "d=relu"]
+    space, fixed = parse_search_space(lines, OverridesParser.create())
+    kinds = {p.name: (p.kind, p.low, p.high, p.choices) for p in space}
+    assert kinds == {
+        "a": ("int", 8, 64, ()), "b": ("float", 0.0, 1.0, ()),
+        "c": ("log-float", 1e-4, 1e-1, ()), "e": ("choice", None, None, (1, 2, 3)),
+        "f": ("choice", None, None, (0, 1, 2)), "g": ("log-int", 1, 1024, ()),
+    }
+    # a later plain value fixes a searched key (the command line wins over the config)
+    assert fixed == ["data.path=F.csv", "d=relu"]
+
+
+def test_overrides_round_trip_through_the_parser() -> None:
+    ind = tidy({"lr": 1.234567891e-5, "n": 12, "act": "tanh", "flag": True, "w": 0.3}, [])
+    parsed = OverridesParser.create().parse_overrides(to_overrides(ind))
+    assert {o.key_or_group: o.value() for o in parsed} == ind
+
+
+@pytest.mark.parametrize("status, value, expected", [
+    (JobStatus.COMPLETED, 1.5, (1.5, "COMPLETED")),
+    (JobStatus.COMPLETED, np.float32(2.0), (2.0, "COMPLETED")),
+    (JobStatus.COMPLETED, math.nan, (math.inf, "NONFINITE")),
+    (JobStatus.COMPLETED, -math.inf, (math.inf, "NONFINITE")),
+    (JobStatus.COMPLETED, None, (math.inf, "INVALID")),
+    (JobStatus.COMPLETED, "0.5", (math.inf, "INVALID")),
+    (JobStatus.COMPLETED, {"val/rmse": 1.0}, (math.inf, "INVALID")),
+    (JobStatus.FAILED, RuntimeError("boom"), (math.inf, "FAILED")),
+])
+def test_job_scores(status: JobStatus, value: object, expected: tuple) -> None:
+    ret = JobReturn(status=status, _return_value=value)
+    fitness, state, error = score(ret)
+    assert (fitness, state) == expected
+    assert (error is None) == (state == "COMPLETED")
+
+
+def test_gyronet_default_search_space_matches_train_config() -> None:
+    if not (ROOT / "conf" / "train.yaml").exists():
+        pytest.skip("conf/train.yaml not written yet")
+    from hydra import compose, initialize_config_dir
+
+    with initialize_config_dir(config_dir=str(ROOT / "conf"), version_base="1.3"):
+        cfg = compose(config_name="train", overrides=["hydra/sweeper=ga"], return_hydra_config=True)
+        tuned = compose(config_name="train", overrides=["search=ga"], return_hydra_config=True)
+    params = cfg.hydra.sweeper.params
+    assert set(params) == {"model.n_centers", "model.width_init", "optim.lr",
+                           "train.weight_decay", "seed"}
+    # every searched key exists in the training config, so each job's override applies
+    missing = [k for k in params if OmegaConf.select(cfg, k, default="<missing>") == "<missing>"]
+    assert missing == []
+    assert tuned.hydra.sweeper._target_.endswith("GASweeper")
+    assert tuned.hydra.sweeper.params == params
+
+
+# ---------------------------------------------------------------- multiruns
+
+
+def test_sweep_writes_history_results_and_best(app: Path) -> None:
+    run_app(app)
+    hist = history(app)
+    gens = hist["generations"]
+    assert [g["generation"] for g in gens] == [0, 1]
+    assert all(len(g["individuals"]) == 4 for g in gens)
+    assert {p["name"] for p in hist["search_space"]} == {"x", "y"}
+    jobs = [e for g in gens for e in g["individuals"] if not e["cached"]]
+    assert calls(app) == len(jobs) >= 5  # elites are reused, not run again
+    for e in jobs:
+        assert e["status"] == "COMPLETED"
+        assert (app / "sweep" / e["job_dir"] / "compensator").is_dir()
+        assert e["fitness"] == pytest.approx((e["params"]["x"] - 3) ** 2 + (e["params"]["y"] + 1) ** 2)
+    results = OmegaConf.load(app / "sweep" / "optimization_results.yaml")
+    best = min(jobs, key=lambda e: e["fitness"])
+    assert results.name == "ga"
+    assert results.best_evaluated_result == pytest.approx(best["fitness"])
+    assert dict(results.best_evaluated_params) == best["params"]
+    # the best job's artifact is copied, and its overrides give the same value back
+    copied = (app / "sweep" / "best" / "compensator" / "params.txt").read_text()
+    assert copied == f"{best['params']['x']} {best['params']['y']}"
+    single = run_app(app, *results.best_overrides, multirun=False)
+    assert f"fitness={results.best_evaluated_result!r}" in single.stdout
+    assert list((app / "sweep" / "tb").glob("events.out.tfevents.*"))
+
+
+def test_failed_jobs_score_inf_and_the_sweep_goes_on(app: Path) -> None:
+    # y from the command line replaces the app's interval with a choice
+    run_app(app, "fail=positive_x", "hydra.sweeper.max_failure_rate=1.0", "y=choice(-1, 0, 1)")
+    hist = history(app)
+    assert {p["name"]: p for p in hist["search_space"]}["y"] == {
+        "name": "y", "kind": "choice", "choices": [-1, 0, 1]}
+    individuals = [e for g in hist["generations"] for e in g["individuals"]]
+    assert all(e["params"]["y"] in (-1, 0, 1) for e in individuals)
+    failed = [e for e in individuals if e["status"] == "FAILED"]
+    assert failed and all(e["params"]["x"] > 0 for e in failed)
+    assert all(e["fitness"] is None and "boom" in e["error"] for e in failed)
+    results = OmegaConf.load(app / "sweep" / "optimization_results.yaml")
+    assert results.best_evaluated_params.x <= 0
+
+
+def test_too_many_failures_stop_the_sweep(app: Path) -> None:
+    proc = run_app(app, "fail=always", check=False)
+    assert proc.returncode != 0
+    assert "GA sweep stopped: 4 of 4 jobs failed in generation 0" in proc.stderr
+    assert "max_failure_rate=0.5" in proc.stderr
+    assert len(history(app)["generations"]) == 1
+    assert calls(app) == 4
+    assert OmegaConf.load(app / "sweep" / "optimization_results.yaml").best_evaluated_result is None
+
+
+def test_resume_continues_without_redoing_generations(app: Path) -> None:
+    run_app(app)
+    before, n_calls = history(app), calls(app)
+    run_app(app, "hydra.sweeper.generations=3")
+    after = history(app)
+    assert after["generations"][:2] == before["generations"]
+    new_jobs = [e for e in after["generations"][2]["individuals"] if not e["cached"]]
+    assert calls(app) == n_calls + len(new_jobs)
+    first_new = min(e["job_idx"] for e in new_jobs)
+    assert first_new == 1 + max(e["job_idx"] for g in before["generations"] for e in g["individuals"])
+    assert OmegaConf.load(app / "sweep" / "optimization_results.yaml").generations == 3
+
+
+@pytest.mark.slow
+def test_resumed_sweep_is_the_uninterrupted_one(app: Path) -> None:
+    # reseeding per generation: stopping after 2 and resuming breeds what 3 in one go breed
+    straight = start_app(app, "hydra.sweeper.generations=3", "calls_log=straight.log",
+                         sweep="straight")
+    run_app(app)
+    run_app(app, "hydra.sweeper.generations=3")
+    finish(straight)
+    def params(sweep: str) -> list:
+        return [[e["params"] for e in g["individuals"]] for g in history(app, sweep)["generations"]]
+    assert len(params("sweep")) == 3
+    assert params("straight") == params("sweep")
+
+
+def test_resume_refuses_another_search_space(app: Path) -> None:
+    (app / "sweep").mkdir()
+    space = [{"name": "x", "kind": "float", "low": 0.0, "high": 1.0}]
+    (app / "sweep" / "ga_history.json").write_text(json.dumps(
+        {"version": 1, "search_space": space, "fixed_overrides": [], "generations": []}))
+    proc = run_app(app, check=False)
+    assert proc.returncode != 0
+    assert "another search space" in proc.stderr
+    assert calls(app) == 0
+
+
+def test_joblib_launcher(app: Path) -> None:
+    run_app(app, "hydra/launcher=joblib", "hydra.launcher.n_jobs=2", "fail=positive_x",
+            "hydra.sweeper.max_failure_rate=1.0")
+    gens = history(app)["generations"]
+    assert [len(g["individuals"]) for g in gens] == [4, 4]
+    statuses = {e["status"] for g in gens for e in g["individuals"]}
+    assert statuses <= {"COMPLETED", "FAILED"} and "COMPLETED" in statuses
+    assert (app / "sweep" / "best" / "compensator" / "params.txt").exists()
