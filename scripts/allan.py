@@ -1,0 +1,35 @@
+"""Allan analysis of a recording: python scripts/allan.py input=F.csv output=A.json.
+
+Writes A.json (CONTRACT.md section 3: per axis ``taus_s``, ``adev_dps``, N, B, K) and A.png.
+"""
+import logging
+from pathlib import Path
+
+import hydra
+from omegaconf import DictConfig, OmegaConf
+
+from gyronet.allan import allan_report, format_table, plot_allan, report_to_json
+from gyronet.data import ALLAN_COLUMNS, load_recording
+from gyronet.errors import GyronetError, exit_on_error
+
+log = logging.getLogger(__name__)
+
+
+@hydra.main(version_base="1.3", config_path="../conf", config_name="allan")
+@exit_on_error
+def main(cfg: DictConfig) -> None:
+    if OmegaConf.is_missing(cfg, "input"):
+        raise GyronetError("no recording given: add input=F.csv")
+    recording = load_recording(cfg.input, required=ALLAN_COLUMNS)
+    report = allan_report(recording.time_s, recording.gyro_dps, per_decade=int(cfg.per_decade))
+    output = Path(cfg.output)
+    output.parent.mkdir(parents=True, exist_ok=True)
+    output.write_text(report_to_json(report), encoding="utf-8")
+    plot_allan(report, path=output.with_suffix(".png"), title=f"Allan deviation: {Path(cfg.input).name}")
+    for line in format_table(report).splitlines():
+        log.info(line)
+    log.info("wrote %s and %s", output, output.with_suffix(".png"))
+
+
+if __name__ == "__main__":
+    main()
