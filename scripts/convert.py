@@ -1,0 +1,17 @@
+"""Convert another tool's recording to a CONTRACT.md CSV: python scripts/convert.py input=IN output=F.csv [format=psim|lpms|ulog|csv]."""
+import hydra
+from omegaconf import DictConfig, OmegaConf
+
+from gyronet.errors import exit_on_error
+from gyronet.importers import FORMATS, convert_with_options
+
+
+@hydra.main(version_base="1.3", config_path="../conf", config_name="convert")
+@exit_on_error
+def main(cfg: DictConfig) -> None:
+    options = {name: OmegaConf.to_container(cfg[name], resolve=True) for name in FORMATS if name in cfg}
+    convert_with_options(cfg.input, cfg.output, cfg.format, cfg.sensor, options)
+
+
+if __name__ == "__main__":
+    main()
