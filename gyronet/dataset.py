@@ -7,9 +7,14 @@ never random samples of the training run.
 """
 from __future__ import annotations
 
+import functools
+import json
 import logging
+import os
 from dataclasses import dataclass, field
 from typing import Any, Mapping, Sequence
+
+from pathlib import Path
 
 import numpy as np
 
@@ -47,6 +52,30 @@ class Blocks:
 
     def __len__(self) -> int:
         return len(self.y)
+
+
+def _file_key(path: str) -> tuple[str, int, int]:
+    stat = os.stat(path)
+    return str(Path(path).resolve()), stat.st_mtime_ns, stat.st_size
+
+
+@functools.lru_cache(maxsize=4)
+def _load_by_key(key: tuple[str, int, int]) -> Recording:
+    return load_recording(key[0])
+
+
+def _load_cached(path: str) -> Recording:
+    """Load a recording once per process: sweep jobs in a reused joblib worker share it."""
+    if not os.path.isfile(path):
+        return load_recording(path)  # raises the one-line error
+    return _load_by_key(_file_key(path))
+
+
+@functools.lru_cache(maxsize=8)
+def _features_by_key(key: tuple[str, int, int], specs_json: str, fs_hz: float) -> np.ndarray:
+    features = featurize(_load_by_key(key), json.loads(specs_json), fs_hz)
+    features.setflags(write=False)  # shared between the runs of one process
+    return features
 
 
 def featurize(recording: Recording, specs: Sequence[Mapping[str, Any]], fs_hz: float | None = None) -> np.ndarray:
@@ -101,14 +130,14 @@ class DriftData:
             for spec in self.features:
                 if spec["kind"] == "rate":
                     spec["tau_s"] = float(self.rate_tau_s)
-        self.recording = load_recording(self.path)
+        self.recording = _load_cached(self.path)
         self.fs_hz = self.recording.fs_hz
         self.static_rate = static_rate_dps(self.recording, self.static_rate_dps)
-        full_x, full_y = self._full_rate(self.recording)
+        full_x, full_y = self._full_rate(self.path)
         time_s = self.recording.time_s
         if self.val_path:
-            val_rec = load_recording(self.val_path)
-            val_x, val_y = self._full_rate(val_rec)
+            val_rec = _load_cached(self.val_path)
+            val_x, val_y = self._full_rate(self.val_path)
             self.train = to_blocks(time_s, full_x, full_y, self.block_s)
             self.val = to_blocks(val_rec.time_s, val_x, val_y, self.block_s)
             self.val_full = (val_rec.time_s, val_x, val_y)
@@ -125,8 +154,10 @@ class DriftData:
             raise GyronetError(f"{self.path}: too short to train on ({len(self.train)} training and "
                                f"{len(self.val)} validation blocks of {self.block_s} s)")
 
-    def _full_rate(self, recording: Recording) -> tuple[np.ndarray, np.ndarray]:
-        x = featurize(recording, self.features, self.fs_hz)
+    def _full_rate(self, path: str) -> tuple[np.ndarray, np.ndarray]:
+        """Features and targets at the full rate, computed once per process for a given file."""
+        recording = _load_cached(path)
+        x = _features_by_key(_file_key(path), json.dumps(self.features, sort_keys=True), self.fs_hz)
         y = recording.gyro_dps - static_rate_dps(recording, self.static_rate_dps)
         return x, y
 

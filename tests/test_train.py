@@ -63,7 +63,9 @@ def test_models_train_and_are_deterministic_with_a_seed(paper_csv, name):
     data = instantiate(cfg.data)
     runs = [fit(instantiate(cfg.model, n_inputs=data.n_features), data, max_epochs=60, seed=3, progress=False)
             for _ in range(2)]
-    assert np.isfinite(runs[0]["val/rmse_dps"]) and runs[0] == runs[1]
+    assert np.isfinite(runs[0]["val/rmse_dps"])
+    # LAPACK's least squares may differ in the last bit between calls; Adam runs are bitwise equal
+    assert runs[0] == pytest.approx(runs[1], rel=1e-12)
 
 
 def test_compensate_matches_live_one_sample_at_a_time(bundle, cycle_csv, tmp_path):
