@@ -165,7 +165,7 @@ def test_gyronet_default_search_space_matches_train_config() -> None:
         tuned = compose(config_name="train", overrides=["search=ga"], return_hydra_config=True)
     params = cfg.hydra.sweeper.params
     assert set(params) == {"model.n_centers", "model.width_init", "optim.lr",
-                           "train.weight_decay", "seed"}
+                           "train.weight_decay", "data.rate_tau_s", "seed"}
     # every searched key exists in the training config, so each job's override applies
     missing = [k for k in params if OmegaConf.select(cfg, k, default="<missing>") == "<missing>"]
     assert missing == []
