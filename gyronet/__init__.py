@@ -5,6 +5,9 @@ inputs), ``gyronet.model`` (the RBF network), ``gyronet.train`` (fit, evaluate),
 ``gyronet.compensator`` (a bundle, run causally offline and live), ``gyronet.allan``,
 ``gyronet.kalman``, ``gyronet.sim``, ``gyronet.stream``, ``gyronet.diagnose``, ``gyronet.importers``.
 """
-from gyronet.export import gyronet_version
+from importlib.metadata import PackageNotFoundError, version
 
-__version__ = gyronet_version()
+try:
+    __version__ = version("gyronet")
+except PackageNotFoundError:  # a bare checkout, not installed
+    __version__ = "unknown"
