@@ -74,29 +74,73 @@ class LiveAllan:
         Sampling rate of the stream, Hz.
     """
 
-    def __init__(self, writer: Any, every_s: float, fs_hz: float):
+    def __init__(self, writer: Any, every_s: float, fs_hz: float, bin_s: float | None = None,
+                 max_history_s: float = 86400.0):
         self.writer, self.every_s, self.fs_hz = writer, float(every_s), float(fs_hz)
-        self.time_s: list[float] = []
-        self.rate_dps: list[np.ndarray] = []
+        # Samples are averaged into bins of at least 0.1 s, so a 1 kHz stream keeps 10 values a
+        # second, not 1000: memory stays flat-ish (~1 MB/h) and a report takes milliseconds. The
+        # Allan deviation at taus of whole bins is unchanged in expectation.
+        self.bin_s = max(1.0 / self.fs_hz, 0.1) if bin_s is None else float(bin_s)
+        self.max_bins = max(16, int(max_history_s / self.bin_s))
+        self._time_s = np.empty(1024)
+        self._rate_dps = np.empty((1024, 3))
+        self._n = 0
+        self._start_s: float | None = None
+        self._bin = -1
+        self._sum = np.zeros(3)
+        self._count = 0
         self.next_s: float | None = None
         self.last: dict[str, dict[str, float]] = {}
 
+    @property
+    def time_s(self) -> np.ndarray:
+        """Mid-times of the completed bins, s."""
+        return self._time_s[:self._n]
+
+    @property
+    def rate_dps(self) -> np.ndarray:
+        """Mean compensated rate of each completed bin, (n, 3), deg/s."""
+        return self._rate_dps[:self._n]
+
     def add(self, time_s: float, rate_dps: np.ndarray) -> None:
-        """Append a sample; report when ``every_s`` of data has passed since the last report."""
-        self.time_s.append(float(time_s))
-        self.rate_dps.append(np.asarray(rate_dps, dtype=np.float64).reshape(3))
-        if self.next_s is None:
+        """Add a sample; report when ``every_s`` of data has passed since the last report."""
+        if self._start_s is None:
+            self._start_s = float(time_s)
             self.next_s = time_s + self.every_s
-        elif time_s >= self.next_s:
-            self.report(step=int(round(time_s - self.time_s[0])))
+        index = int((time_s - self._start_s) // self.bin_s)
+        if index != self._bin:
+            self._close_bin()
+            self._bin = index
+        self._sum += np.asarray(rate_dps, dtype=np.float64).reshape(3)
+        self._count += 1
+        if time_s >= self.next_s:
+            self.report(step=int(round(time_s - self._start_s)))
             self.next_s = time_s + self.every_s
+
+    def _close_bin(self) -> None:
+        if self._count == 0:
+            return
+        if self._n == len(self._time_s):
+            if self._n >= self.max_bins:  # keep the newest half of the history
+                keep = self._n // 2
+                self._time_s[:keep] = self._time_s[self._n - keep:self._n]
+                self._rate_dps[:keep] = self._rate_dps[self._n - keep:self._n]
+                self._n = keep
+            else:
+                self._time_s = np.resize(self._time_s, 2 * self._n)
+                self._rate_dps = np.resize(self._rate_dps, (2 * self._n, 3))
+        self._time_s[self._n] = self._start_s + (self._bin + 0.5) * self.bin_s
+        self._rate_dps[self._n] = self._sum / self._count
+        self._n += 1
+        self._sum[:] = 0.0
+        self._count = 0
 
     def report(self, step: int, figure: bool = False) -> None:
         """Compute N and B per axis on everything so far and log them (and the curves, if asked)."""
         from gyronet.allan import allan_report, plot_allan
 
         try:
-            report = allan_report(np.asarray(self.time_s), np.vstack(self.rate_dps), self.fs_hz)
+            report = allan_report(self.time_s, self.rate_dps, 1.0 / self.bin_s)
         except GyronetError as err:  # too short so far
             log.debug("no Allan report yet: %s", err)
             return
@@ -120,8 +164,9 @@ class LiveAllan:
 
     def finish(self) -> None:
         """The last report, with the Allan curves as a figure."""
-        if len(self.time_s) >= 3:
-            self.report(step=int(round(self.time_s[-1] - self.time_s[0])), figure=True)
+        self._close_bin()
+        if self._n >= 3:
+            self.report(step=int(round(self.time_s[-1] - self._start_s)), figure=True)
 
 
 def _number(value: float | None) -> str:
