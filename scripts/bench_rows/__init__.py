@@ -1,0 +1,8 @@
+"""The rows of scripts/bench.py, one module per topic; importing this package registers them all.
+
+The registry and helpers are in :mod:`.harness`; ``probe.py`` is a script the ``stream_pty`` row runs.
+"""
+from . import reference, training, offline, live  # noqa: F401  (registration order = default run order)
+from .harness import BENCHES, LONG, Context
+
+__all__ = ["BENCHES", "LONG", "Context"]

@@ -1,0 +1,186 @@
+"""Live throughput, latency and memory: emulate_sensor.py -> pseudo-terminal -> stream.py.
+
+Both scripts run under ``probe.py`` (timing hooks from outside the library). The stream process is
+pinned to one core and the emulator to another. Three flood runs (``speed=0``): LP-BUS through the
+default bundle, LP-BUS through the PX4 cubic bundle (the reference), CSV lines through the default
+bundle. Then one paced run at 1 kHz (``speed=1`` on a 1 kHz recording) for latency and RSS.
+"""
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .harness import ROOT, Context, bench, percentiles_ms, row, trained_bundle
+
+SAMPLES_GOAL_PER_S = 5000.0
+P99_GOAL_MS = 1.0
+RSS_GOAL_MB_PER_H = 10.0  # "flat over a one-hour stream"
+FS_HZ = 1000.0
+STREAM_CPU, EMULATOR_CPU = 1, 0
+PROBE = Path(__file__).with_name("probe.py")
+
+
+def _recording_1khz(ctx: Context, n: int) -> Path:
+    """A constant-temperature (25 degC) recording at 1 kHz, ``n`` samples, written once."""
+    from gyronet.sim import simulate, write_simulation
+
+    path = ctx.work_dir / f"stream_1khz_{n}.csv"
+    if not path.exists():
+        partial = path.with_name(path.stem + "_partial.csv")
+        recording, truth = write_simulation(simulate("constant", fs_hz=FS_HZ, duration_s=n / FS_HZ), partial)
+        truth.unlink()
+        recording.replace(path)
+    return path
+
+
+def _pinned(cpu: int):
+    cpus = os.sched_getaffinity(0)
+    return (lambda: os.sched_setaffinity(0, {cpu})) if cpu in cpus and len(cpus) > 1 else None
+
+
+def _run_pair(ctx: Context, name: str, recording: Path, bundle: Path, protocol: str, speed: float,
+              n: int) -> dict[str, Any]:
+    """Emulator and stream under the probe; returns their timing arrays."""
+    run_dir = ctx.path(f"stream_{name}")
+    shutil.rmtree(run_dir, ignore_errors=True)
+    run_dir.mkdir(parents=True)
+    link = run_dir / "sensor"
+    # LP-BUS timestamps count ticks of timestamp_hz (default 400 Hz): at 1 kHz ticks must be 1 ms or finer
+    ticks = [f"lpbus.timestamp_hz={FS_HZ:g}"] if protocol == "lpbus" else []
+    python = [sys.executable, str(PROBE)]
+    processes = []
+    try:
+        for role, cpu, script, overrides in (
+                ("emulator", EMULATOR_CPU, "emulate_sensor.py",
+                 [f"input={recording}", f"protocol={protocol}", f"speed={speed:g}", f"link={link}",
+                  "reader_timeout_s=120", *ticks]),
+                ("stream", STREAM_CPU, "stream.py",
+                 [f"model={bundle}", f"port={link}", f"protocol={protocol}", f"output={run_dir / 'live.csv'}",
+                  f"max_samples={n}", "reconnect.give_up_s=10", *ticks])):
+            with open(run_dir / f"{role}.log", "w") as log:
+                processes.append(subprocess.Popen(
+                    [*python, role.replace("emulator", "emulate"), str(run_dir / f"{role}.npz"),
+                     str(ROOT / "scripts" / script), *overrides, f"hydra.run.dir={run_dir / role}"],
+                    cwd=ROOT, env=ctx.env(), stdout=log, stderr=subprocess.STDOUT, preexec_fn=_pinned(cpu)))
+        timeout_s = 300 + 3 * n / FS_HZ / max(speed, 1.0)
+        for role, process in (("stream", processes[1]), ("emulator", processes[0])):
+            if process.wait(timeout_s) != 0:
+                raise RuntimeError(f"{role} exited {process.returncode}: "
+                                   f"{(run_dir / f'{role}.log').read_text()[-500:]}")
+    finally:
+        for process in processes:
+            if process.poll() is None:
+                process.kill()
+                process.wait()
+    stream, emulator = np.load(run_dir / "stream.npz"), np.load(run_dir / "emulator.npz")
+    meta = json.loads(str(stream["meta"]))
+    sent = emulator["sent_at"][1:] if protocol == "csv" else emulator["sent_at"]  # the CSV header goes first
+    written = stream["written_at"]
+    if len(written) != n or len(sent) != n:
+        raise RuntimeError(f"{name}: {len(sent)} frames sent, {len(written)} rows written, {n} expected")
+    return {"n": n, "elapsed_s": float(written[-1] - meta["first_read"]), "read_to_write_s": stream["latency"],
+            "sent_to_write_s": written - sent, "stage_s": meta["stage_s"], "reports_s": stream["reports"],
+            "final_report_s": meta["final_report_s"], "rss": stream["rss"]}
+
+
+def _per_sample_us(bundle: Path, recording: Path, n: int = 3000, warm_up: int = 500) -> dict[str, float]:
+    """In-process, one sample per call as the live loop makes them: features, model, whole process(), us.
+
+    Two compensators take the same samples in turns: one is timed stage by stage, the other for the
+    whole ``process`` call, so both see the same machine. The first ``warm_up`` samples are not
+    timed (TorchScript's profiling executor optimises after the first calls).
+    """
+    import torch
+
+    from gyronet.compensator import Compensator
+    from gyronet.data import load_recording
+
+    staged, whole = Compensator.load(bundle), Compensator.load(bundle)
+    staged.reset()
+    whole.reset()
+    columns = load_recording(recording).columns
+    perf = time.perf_counter
+    spent = dict.fromkeys(("features", "model", "process"), 0.0)
+    for i in range(n):
+        one = {name: np.array([columns[name][i]]) for name in whole.input_columns}
+        start = perf()
+        x = staged.extractor.process(one)
+        middle = perf()
+        with torch.no_grad():
+            staged.model(torch.from_numpy(x)).numpy()
+        end = perf()
+        whole.process(one)
+        if i >= warm_up:
+            spent["features"] += middle - start
+            spent["model"] += end - middle
+            spent["process"] += perf() - end
+    us = {k: 1e6 * v / (n - warm_up) for k, v in spent.items()}
+    us["rest"] = us["process"] - us["features"] - us["model"]
+    return us
+
+
+def _rss_figures(rss: np.ndarray) -> dict[str, float]:
+    """RSS at the first row and at the end, and the growth extrapolated to one hour at 1 kHz."""
+    rows, rss_mb = rss[1:, 0], rss[1:, 2]  # rss[0]: before the bundle was loaded
+    later = rows >= rows[-1] / 10  # past start-up (first allocations, the first Allan report)
+    slope = np.polyfit(rows[later], rss_mb[later], 1)[0] if later.sum() >= 3 else float("nan")
+    return {"rss_start_mb": float(rss_mb[0]), "rss_end_mb": float(rss_mb[-1]),
+            "rss_growth_mb_per_h": float(slope * FS_HZ * 3600.0)}
+
+
+@bench("stream_pty")
+def stream_pty(ctx: Context) -> dict[str, Any]:
+    """emulate_sensor.py -> pty -> stream.py: samples/s flooded (goal >= 5000/s), p99 latency at 1 kHz (< 1 ms), RSS."""
+    n_flood, n_paced = ctx.size(120_000, 3_000), ctx.size(600_000, 3_000)
+    bundles = {model: trained_bundle(ctx, model) for model in ("default", "poly3")}
+    flood = _recording_1khz(ctx, n_flood)
+    runs = {"lpbus": _run_pair(ctx, "lpbus", flood, bundles["default"], "lpbus", 0, n_flood),
+            "lpbus_poly3": _run_pair(ctx, "lpbus_poly3", flood, bundles["poly3"], "lpbus", 0, n_flood),
+            "csv": _run_pair(ctx, "csv", flood, bundles["default"], "csv", 0, n_flood),
+            "paced": _run_pair(ctx, "paced", _recording_1khz(ctx, n_paced), bundles["default"], "lpbus", 1, n_paced)}
+    rate = {k: r["n"] / r["elapsed_s"] for k, r in runs.items()}
+    paced = runs["paced"]
+    sent_ms, read_ms = percentiles_ms(paced["sent_to_write_s"]), percentiles_ms(paced["read_to_write_s"])
+    flood_ms = percentiles_ms(runs["lpbus"]["read_to_write_s"])
+    us_per_sample = {k: 1e6 * v / runs["lpbus"]["n"] for k, v in runs["lpbus"]["stage_s"].items()}
+    reports = paced["reports_s"]
+    per_sample = {model: _per_sample_us(bundle, flood) for model, bundle in bundles.items()}
+    memory = _rss_figures(paced["rss"])
+    def verdict(ok: bool) -> str:
+        return "met" if ok else "NOT met"
+
+    allan_ms = 1e3 * reports.max() if len(reports) else 0.0
+    notes = "; ".join([
+        f"flood: {n_flood} samples of a 1 kHz constant-temperature recording (LP-BUS ticks at 1 kHz; bundles trained "
+        f"at 10 Hz): LP-BUS {rate['lpbus']:.0f}/s (goal >= {SAMPLES_GOAL_PER_S:.0f}/s: "
+        f"{verdict(rate['lpbus'] >= SAMPLES_GOAL_PER_S)}) vs poly3 bundle {rate['lpbus_poly3']:.0f}/s, "
+        f"CSV {rate['csv']:.0f}/s",
+        "per sample in the flood: " + ", ".join(f"{k} {v:.0f} us" for k, v in us_per_sample.items()),
+        "process() per sample in-process: " + ", ".join(
+            f"{m} {v['process']:.0f} us (features {v['features']:.0f}, model {v['model']:.0f}, rest {v['rest']:.0f})"
+            for m, v in per_sample.items()),
+        f"paced at 1 kHz for {n_paced / FS_HZ:.0f} s: frame sent -> row written p50 {sent_ms['p50']:.2f} ms, "
+        f"p99 {sent_ms['p99']:.2f} ms (goal < {P99_GOAL_MS:g} ms: {verdict(sent_ms['p99'] < P99_GOAL_MS)}), "
+        f"max {sent_ms['max']:.0f} ms",
+        f"{len(reports)} live Allan reports while streaming, longest {allan_ms:.0f} ms (the final one, with the "
+        f"figure, {paced['final_report_s']:.1f} s)",
+        f"RSS {memory['rss_start_mb']:.0f} -> {memory['rss_end_mb']:.0f} MB, {memory['rss_growth_mb_per_h']:.0f} MB/h "
+        f"extrapolated (goal flat, < {RSS_GOAL_MB_PER_H:g} MB/h: "
+        f"{verdict(memory['rss_growth_mb_per_h'] < RSS_GOAL_MB_PER_H)})",
+        f"stream pinned to CPU {STREAM_CPU}, emulator to CPU {EMULATOR_CPU}"])
+    return row("stream_pty", runs["lpbus"]["elapsed_s"], runs["lpbus_poly3"]["elapsed_s"], notes,
+               samples_per_s=rate["lpbus"], reference_samples_per_s=rate["lpbus_poly3"],
+               csv_samples_per_s=rate["csv"], p50_ms=sent_ms["p50"], p99_ms=sent_ms["p99"],
+               latency_sent_to_write_ms=sent_ms, latency_read_to_write_ms=read_ms,
+               flood_latency_read_to_write_ms=flood_ms, stage_us_per_sample=us_per_sample,
+               paced_stage_us_per_sample={k: 1e6 * v / n_paced for k, v in paced["stage_s"].items()},
+               process_us_per_sample_in_process=per_sample, allan_reports_s=[float(r) for r in reports],
+               allan_final_report_s=paced["final_report_s"], n_flood=n_flood, n_paced=n_paced, **memory)

@@ -1,0 +1,157 @@
+"""Run scripts/stream.py or scripts/emulate_sensor.py with timing hooks; the ``stream_pty`` row starts it.
+
+    python scripts/bench_rows/probe.py stream OUT.npz scripts/stream.py model=... port=... ...
+    python scripts/bench_rows/probe.py emulate OUT.npz scripts/emulate_sensor.py input=... ...
+
+The library has no per-sample timing hook, so this wraps methods from outside (the library is not
+changed) and then runs the script as ``__main__``. Times are ``time.perf_counter()``, which on
+Linux is CLOCK_MONOTONIC, one clock for both processes.
+
+stream: ``parser.feed`` (the bytes of a chunk were just read; its samples are stamped with that
+time), ``Compensator.process``, ``LiveWriter.write`` (the output row is written and flushed: the
+sample's latency ends), ``LiveAllan.add`` and ``LiveAllan.report`` (the last report, which
+``finish`` makes after the stream stopped, is kept apart); RSS every 1000 rows.
+emulate: ``PtySensor.write`` (the frame's last byte is in the kernel).
+"""
+from __future__ import annotations
+
+import collections
+import json
+import os
+import runpy
+import sys
+import time
+from array import array
+from typing import Any, Callable
+
+import numpy as np
+
+RSS_EVERY = 1000
+
+
+def _rss_mb() -> float:
+    with open("/proc/self/statm") as handle:
+        return int(handle.read().split()[1]) * os.sysconf("SC_PAGE_SIZE") / 1e6
+
+
+def _wrap(owner: Any, name: str, around: Callable) -> None:
+    original = getattr(owner, name)
+    setattr(owner, name, lambda *args, **kwargs: around(original, *args, **kwargs))
+
+
+class StreamProbe:
+    """Per-sample read and write times, time per stage, Allan report durations, RSS."""
+
+    def __init__(self) -> None:
+        import gyronet.stream.live as live
+        from gyronet.compensator import Compensator
+        from gyronet.stream.events import Sample
+
+        self.read_at: collections.deque[float] = collections.deque()
+        # reports: LiveAllan.report durations between samples; final_report: the one finish() makes
+        self.latency, self.written_at, self.reports = array("d"), array("d"), array("d")
+        self.final_report = float("nan")
+        self.finishing = False
+        self.stage = dict.fromkeys(["parse", "process", "write", "allan_add"], 0.0)
+        self.rss: list[tuple[int, float, float]] = [(0, time.perf_counter(), _rss_mb())]
+        self.first_read: float | None = None
+        perf = time.perf_counter
+
+        def make_parser(original, *args, **kwargs):
+            parser = original(*args, **kwargs)
+            feed = parser.feed
+
+            def timed_feed(data: bytes):
+                start = perf()
+                if self.first_read is None:
+                    self.first_read = start
+                items = feed(data)
+                self.stage["parse"] += perf() - start
+                self.read_at.extend(start for item in items if isinstance(item, Sample))
+                return items
+
+            parser.feed = timed_feed
+            return parser
+
+        def timed(key: str) -> Callable:
+            def around(original, *args, **kwargs):
+                start = perf()
+                result = original(*args, **kwargs)
+                self.stage[key] += perf() - start
+                return result
+            return around
+
+        def write(original, writer, *args, **kwargs):
+            start = perf()
+            original(writer, *args, **kwargs)
+            done = perf()
+            self.stage["write"] += done - start
+            self.written_at.append(done)
+            self.latency.append(done - self.read_at.popleft() if self.read_at else float("nan"))
+            if writer.n_rows == 1 or writer.n_rows % RSS_EVERY == 0:
+                self.rss.append((writer.n_rows, done, _rss_mb()))
+
+        def report(original, *args, **kwargs):
+            start = perf()
+            result = original(*args, **kwargs)
+            if self.finishing:
+                self.final_report = perf() - start
+            else:
+                self.reports.append(perf() - start)
+            return result
+
+        def finish(original, *args, **kwargs):
+            self.finishing = True
+            return original(*args, **kwargs)
+
+        _wrap(live, "make_parser", make_parser)
+        _wrap(Compensator, "process", timed("process"))
+        _wrap(live.LiveWriter, "write", write)
+        _wrap(live.LiveAllan, "add", timed("allan_add"))
+        _wrap(live.LiveAllan, "report", report)
+        _wrap(live.LiveAllan, "finish", finish)
+
+    def save(self, path: str) -> None:
+        meta = {"stage_s": self.stage, "first_read": self.first_read, "unwritten": len(self.read_at),
+                "final_report_s": self.final_report}
+        np.savez(path, latency=np.asarray(self.latency), written_at=np.asarray(self.written_at),
+                 reports=np.asarray(self.reports), rss=np.asarray(self.rss), meta=np.array(json.dumps(meta)))
+
+
+class EmulateProbe:
+    """The time each non-empty write to the pty returned."""
+
+    def __init__(self) -> None:
+        from gyronet.stream.pty_sensor import PtySensor
+
+        self.sent_at, self.sizes = array("d"), array("l")
+
+        def write(original, sensor, data: bytes):
+            original(sensor, data)
+            if data:
+                self.sent_at.append(time.perf_counter())
+                self.sizes.append(len(data))
+
+        _wrap(PtySensor, "write", write)
+
+    def save(self, path: str) -> None:
+        np.savez(path, sent_at=np.asarray(self.sent_at), sizes=np.asarray(self.sizes))
+
+
+def main() -> int:
+    mode, out_path, script, *overrides = sys.argv[1:]
+    sys.path.pop(0)  # this folder: its modules must not shadow anything the script imports
+    probe = StreamProbe() if mode == "stream" else EmulateProbe()
+    sys.argv = [script, *overrides]
+    code: Any = 0
+    try:
+        runpy.run_path(script, run_name="__main__")
+    except SystemExit as stop:
+        code = stop.code or 0
+    finally:
+        probe.save(out_path)
+    return code if isinstance(code, int) else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())
