@@ -1,0 +1,279 @@
+"""Close the loop: train on the declared inputs, find what the residual still follows, add it, repeat.
+
+1. Train the baseline network on the declared inputs (``data.features``) and save it.
+2. Build every candidate effect the recording allows (:mod:`.candidates`) and its 60 s block means.
+3. Screen them against the current network's held-out residual (:mod:`.screen`): held-out gain,
+   family-wise permutation test over circular time shifts, a minimum gain.
+4. For the best families that passed (:mod:`.choose`), best first: refine the parameter, add the
+   feature, retrain the network, refine again with the retrained network, and **confirm**: the
+   retrained network's own held-out residual must drop by at least ``confirm_gain``. The first
+   that confirms is kept and the loop goes back to 3; if none does, it stops.
+5. Save the final network as a bundle whose ``meta.json`` lists the extra feature specs, so the
+   deployed compensator computes them through the same causal code, offline and live.
+
+Two gates, because they catch different mistakes. The screen's permutation test rejects chance.
+It cannot reject a real but unimportant association: on a long record the baseline's own small
+imperfections (its dT/dt path at ramp corners, its first minutes) correlate with some candidate
+well beyond chance. Those do not survive the retraining: a network given the candidate does no
+better on held-out data, while one given a missing effect does much better.
+
+The numbers in ``diagnosis.json`` are the networks' 60 s residual on the held-out split (the
+training command's ``val/rmse``: held-out time blocks, or the separate ``val_path`` recording):
+``baseline``, then each effect's before and after, then ``final``. The screen's cross-validated
+numbers are in each effect's ``evidence``.
+"""
+from __future__ import annotations
+
+import json
+import logging
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any, Callable, Mapping, Sequence
+
+import numpy as np
+import torch
+
+from gyronet.data import AXES, load_recording
+from gyronet.dataset import DriftData
+from gyronet.diagnose.candidates import (CandidateGrid, candidate_specs, effect_kind, effect_params,
+                                         effect_source, source_columns)
+from gyronet.diagnose.choose import Choice, ranked, refine, score_specs
+from gyronet.diagnose.report import evidence, write_report
+from gyronet.diagnose.rows import ScreenRows
+from gyronet.diagnose.screen import screen
+from gyronet.export import save_bundle
+from gyronet.features import feature_name
+from gyronet.pipeline import _jsonable, _meta
+from gyronet.train import fit
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class DiagnoseOptions:
+    """How hard to look and how sure to be (``conf/diagnose.yaml``: ``diagnose``).
+
+    Scores are fractions of a held-out sum of squares of the 60 s residual that an effect removes,
+    summed over the axes (one axis halved in variance: 0.5).
+
+    Attributes
+    ----------
+    alpha
+        Family-wise false-positive rate of each round's permutation test, over all candidates.
+    min_gain
+        Smallest screen score worth a retraining.
+    confirm_gain
+        Smallest drop of the retrained network's own held-out residual, same scale: an effect
+        that passes the screen but not this is a real but negligible association.
+    n_shifts
+        Circular time shifts in the permutation test (fewer on a short record: all there are).
+    max_effects
+        Stop after this many effects.
+    block_s
+        Residual block, s (the contract's 60 s).
+    span_s, n_folds
+        Cross-validation: spans of ``span_s`` seconds, span i held out in fold i % n_folds.
+    ridge
+        Ridge penalty of the screen's refits (relative, on standardised regressors); None picks it
+        by cross-validation of the model's own regressors, each round.
+    refine_top
+        Families tried per round (refined, retrained, confirmed), best screen score first.
+    refine_passes
+        Times the chosen parameter is searched again with the retrained network (each may retrain).
+    seed
+        Seeds the shifts.
+    candidates
+        The candidate grids.
+    """
+
+    alpha: float = 0.01
+    min_gain: float = 0.1
+    confirm_gain: float = 0.2
+    n_shifts: int = 199
+    max_effects: int = 4
+    block_s: float = 60.0
+    span_s: float = 600.0
+    n_folds: int = 5
+    ridge: float | None = None
+    refine_top: int = 3
+    refine_passes: int = 2
+    seed: int = 0
+    candidates: CandidateGrid = field(default_factory=CandidateGrid)
+
+    def __post_init__(self) -> None:
+        if isinstance(self.candidates, Mapping):
+            self.candidates = CandidateGrid(**self.candidates)
+
+
+@dataclass
+class Stage:
+    """One trained network and the data (inputs) it was trained on."""
+
+    model: torch.nn.Module
+    data: DriftData
+    metrics: dict[str, float]
+
+    def val_rmse(self) -> dict[str, float]:
+        return {a: self.metrics[f"val/rmse_{a}_dps"] for a in AXES}
+
+    def gain_over(self, before: "Stage") -> float:
+        """Score of this network's held-out residual against ``before``'s (positive parts summed)."""
+        old, new = np.array(list(before.val_rmse().values())), np.array(list(self.val_rmse().values()))
+        return float(np.clip(1.0 - new**2 / np.maximum(old**2, 1e-300), 0.0, None).sum())
+
+
+class _Trainer:
+    """Builds the data for a list of inputs and trains a fresh network on it."""
+
+    def __init__(self, data_options: Mapping[str, Any], make_model: Callable[[int], torch.nn.Module],
+                 optim: Callable | None, train_cfg: Mapping[str, Any], seed: int):
+        self.data_options, self.make_model = dict(data_options), make_model
+        self.optim, self.train_cfg, self.seed = optim, dict(train_cfg), seed
+
+    def __call__(self, specs: Sequence[Mapping[str, Any]] | None = None) -> Stage:
+        options = dict(self.data_options)
+        if specs is not None:
+            options["features"] = [dict(s) for s in specs]
+        data = DriftData(**options)
+        model = self.make_model(data.n_features)
+        metrics = fit(model, data, self.optim, seed=self.seed, **self.train_cfg)
+        log.info("trained on %s: held-out 60 s RMSE %s deg/s", ", ".join(data.feature_names),
+                 ", ".join(f"{a}={metrics[f'val/rmse_{a}_dps']:.4g}" for a in AXES))
+        return Stage(model, data, metrics)
+
+
+def _attempt(choice: Choice, stage: Stage, train: _Trainer, rows: ScreenRows, basis: tuple, ridge: float,
+             options: DiagnoseOptions, longest_s: float) -> tuple[Choice, Stage]:
+    """Retrain with the effect; refine its parameter again with the retrained network."""
+    inputs = stage.data.features
+    trained = train([*inputs, choice.spec])
+    for _ in range(options.refine_passes):
+        # the frozen basis had absorbed part of the effect, which biases its parameter: look
+        # again with the retrained network, leaving out the new feature's own regressor
+        rebasis = rows.basis(trained.model, trained.data.features, without=len(inputs))
+        better = None if rebasis is None else refine(choice.spec, rows, rebasis, options.ridge, longest_s)
+        if better is None or feature_name(better.spec) == feature_name(choice.spec):
+            break
+        log.info("refined %s to %s", feature_name(choice.spec), feature_name(better.spec))
+        gain, score, rmse_after = score_specs(rows, basis, [better.spec], ridge)
+        choice = Choice(better.spec, choice.index, gain[0], float(score[0]), rmse_after[0])
+        trained = train([*inputs, choice.spec])
+    return choice, trained
+
+
+def diagnose(data_options: Mapping[str, Any], make_model: Callable[[int], torch.nn.Module], out_dir: str | Path,
+             optim: Callable | None = None, train_cfg: Mapping[str, Any] | None = None,
+             options: DiagnoseOptions | Mapping[str, Any] | None = None, seed: int = 0,
+             plots: bool = True) -> dict[str, Any]:
+    """Run the whole diagnosis; write ``out_dir/diagnosis.json``, both bundles and ``report.md``.
+
+    Parameters
+    ----------
+    data_options
+        ``DriftData`` arguments (``path``, ``features`` = the declared inputs, ``val_path``, ...).
+    make_model
+        ``make_model(n_inputs)`` returns an untrained model (e.g. the default ``RBFNet``).
+    out_dir
+        Where to write.
+    optim, train_cfg, seed
+        Passed to ``gyronet.train.fit``.
+    options
+        ``DiagnoseOptions`` or a mapping of its fields.
+    plots
+        Write the PNG figures of the report.
+
+    Returns
+    -------
+    dict
+        The content of ``diagnosis.json`` (CONTRACT.md section 4).
+    """
+    started = time.monotonic()
+    out_dir = Path(out_dir)
+    if not isinstance(options, DiagnoseOptions):
+        options = DiagnoseOptions(**dict(options or {}))
+    if 1 / (options.n_shifts + 1) > options.alpha:
+        log.warning("n_shifts=%d cannot give a p-value below alpha=%g: nothing can pass",
+                    options.n_shifts, options.alpha)
+    train = _Trainer(data_options, make_model, optim, dict(train_cfg or {}), seed)
+    stage = train()
+    stages = [stage]
+    save_bundle(stage.model, _meta(stage.model, stage.data), out_dir / "baseline" / "compensator")
+
+    recordings, columns = [stage.data.recording], None
+    if data_options.get("val_path"):
+        recordings.append(load_recording(data_options["val_path"]))
+        columns = [c for c in source_columns(recordings[0]) if c in set(source_columns(recordings[1]))]
+    span_s = float(recordings[0].time_s[-1] - recordings[0].time_s[0])
+    longest_s = options.candidates.max_tau_fraction * span_s
+    rows = ScreenRows.build(recordings, stage.data.fs_hz, options.block_s,
+                            max(2 * options.n_folds, int(round(span_s / options.span_s))), options.n_folds,
+                            data_options.get("static_rate_dps"))
+    n_all = len(rows)
+    if "temp_c" in stage.data.feature_names:
+        trained_c = stage.data.train.x[:, stage.data.feature_names.index("temp_c")]
+        rows = rows.within((float(trained_c.min()), float(trained_c.max())))
+        if len(rows) < n_all:
+            log.info("%d of %d blocks lie outside the training temperature range: not screened",
+                     n_all - len(rows), n_all)
+    pool = candidate_specs(recordings[0], options.candidates, exclude=stage.data.features, columns=columns)
+    values = rows.features(pool)
+    log.info("%d candidate effects, %d blocks of %g s", len(pool), len(rows), options.block_s)
+
+    effects, rounds = [], []
+    while len(effects) < options.max_effects and pool:
+        basis = rows.basis(stage.model, stage.data.features)
+        result = screen(basis[0], rows.target, values, rows.fold, rows.recording, [feature_name(s) for s in pool],
+                        pool, options.n_shifts, options.seed + len(rounds), options.ridge, basis[1])
+        passing = result.passing(options.alpha, options.min_gain)
+        round_ = {"n_candidates": len(pool), "n_shifts": len(result.null_max), "ridge": result.ridge,
+                  "null_max_quantile": float(np.quantile(result.null_max, 1 - options.alpha)),
+                  "rmse_before_dps": dict(zip(AXES, result.rmse_before.tolist())),
+                  "candidates": result.table()[:15], "tried": []}
+        rounds.append(round_)
+        log.info("round %d: best %s score %.3g p %.3g; %d pass", len(rounds), round_["candidates"][0]["name"],
+                 round_["candidates"][0]["score"], round_["candidates"][0]["p_value"], len(passing))
+        kept = None
+        for choice in ranked(result, passing, rows, basis, options.refine_top, longest_s) if len(passing) else []:
+            choice, trained = _attempt(choice, stage, train, rows, basis, result.ridge, options, longest_s)
+            confirmed = trained.gain_over(stage)
+            round_["tried"].append({"spec": choice.spec, "score": choice.score, "confirm": confirmed})
+            log.info("%s: screen score %.3g, retrained held-out score %.3g (%s)", feature_name(choice.spec),
+                     choice.score, confirmed, "kept" if confirmed >= options.confirm_gain else "not confirmed")
+            if confirmed >= options.confirm_gain:
+                kept = (choice, trained, confirmed)
+                break
+        if kept is None:
+            break
+        choice, trained, confirmed = kept
+        axes = result.axes(choice.index, options.alpha)
+        effects.append({
+            "kind": effect_kind(choice.spec), "source": effect_source(choice.spec),
+            "params": effect_params(choice.spec), "axes": axes,
+            "val_rmse_before_dps": stage.val_rmse(), "val_rmse_after_dps": trained.val_rmse(),
+            "evidence": evidence(choice.spec, choice.score, choice.rmse_after, choice.index, result, axes,
+                                 options.alpha, options.min_gain, confirmed, options.confirm_gain),
+        })
+        log.info("effect %d: %s", len(effects), effects[-1]["evidence"])
+        stage = trained
+        stages.append(stage)
+        drop = {feature_name(choice.spec), result.names[choice.index]}
+        keep = [i for i, s in enumerate(pool) if feature_name(s) not in drop]
+        pool, values = [pool[i] for i in keep], values[:, keep]
+
+    save_bundle(stage.model, _meta(stage.model, stage.data), out_dir / "compensator")
+    diagnosis = {
+        "baseline": {"inputs": stages[0].data.feature_names, "val_rmse_dps": stages[0].val_rmse()},
+        "effects": effects,
+        "final": {"inputs": stage.data.feature_names, "val_rmse_dps": stage.val_rmse()},
+    }
+    out_dir.mkdir(parents=True, exist_ok=True)
+    (out_dir / "diagnosis.json").write_text(json.dumps(diagnosis, indent=2) + "\n")
+    details = {"options": asdict(options), "n_blocks": len(rows), "n_blocks_outside": n_all - len(rows),
+               "rounds": rounds, "stages": [{"inputs": s.data.feature_names, "features": s.data.features,
+                                             "metrics": s.metrics} for s in stages]}
+    write_report(out_dir, diagnosis, details, rows, stages, plots=plots)
+    details["runtime_s"] = time.monotonic() - started
+    (out_dir / "diagnosis_details.json").write_text(json.dumps(_jsonable(details), indent=2) + "\n")
+    log.info("diagnosis done in %.1f s: %d effect(s)", details["runtime_s"], len(effects))
+    return diagnosis

@@ -1,0 +1,370 @@
+"""The diagnosis: finds an effect nobody declared, names its source, and finds nothing when there is none.
+
+Fast tests check the candidates, the statistics of the screen on synthetic arrays, one whole loop
+on a short record, the bundle's causal path and the script. The slow ones run the loop on 12.7 h
+simulated records, one effect each (the simulator's and some invented here), and check the final
+bundle against the ground truth of a separate recording with another thermal history.
+"""
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from gyronet.compensator import Compensator
+from gyronet.data import AXES, Recording, load_recording, load_truth
+from gyronet.dataset import block_rmse
+from gyronet.diagnose import (CandidateGrid, ScreenRows, candidate_specs, diagnose, effect_kind, filter_tau, screen,
+                              shift_fractions)
+from gyronet.features import feature_name
+from gyronet.model import RBFNet
+from gyronet.sim import first_order_lag, simulate, write_simulation
+from gyronet.sim.noise import ou_process
+from gyronet.train import residual_report
+
+from conftest import FAST_FS_HZ, ROOT, SHARED
+
+CONTRACT_KEYS = {"kind", "source", "params", "axes", "val_rmse_before_dps", "val_rmse_after_dps", "evidence"}
+
+
+# ----------------------------------------------------------------------------------------- helpers
+
+def _write(path: Path, sim) -> Path:
+    write_simulation(sim, path)
+    return path
+
+
+def _add_drift(sim, drift: np.ndarray, columns: dict | None = None):
+    """An effect of our own: add ``drift`` (n, 3) to the gyro and to the truth, and new columns."""
+    for i, axis in enumerate(AXES):
+        sim.recording[f"gyro_{axis}_dps"] = sim.recording[f"gyro_{axis}_dps"] + drift[:, i]
+        sim.truth[f"drift_{axis}_dps"] = sim.truth[f"drift_{axis}_dps"] + drift[:, i]
+    sim.recording.update(columns or {})
+    return sim
+
+
+def _board_temperature(sim, seed: int):
+    """A board thermistor ``board_temp_c``: the chamber through 600 s, the board's own warm-up after
+    power-on and a processor-load wander; the drift follows it through a 300 s lag."""
+    time_s, chamber_c = sim.truth["time_s"], sim.truth["chamber_temp_c"]
+    rng = np.random.default_rng([seed, 77])
+    load_c = ou_process(len(time_s), FAST_FS_HZ, 3.0, 1200.0, rng)
+    self_heating_c = 4.0 * (1 - np.exp(-(time_s - time_s[0]) / 900.0))
+    board_c = first_order_lag(chamber_c, FAST_FS_HZ, 600.0) + 1.0 + self_heating_c + load_c
+    reading = np.round((board_c + 0.05 * rng.standard_normal(len(time_s))) / 0.01) * 0.01
+    drift = np.outer(first_order_lag(board_c, FAST_FS_HZ, 300.0) - 25.0, [0.004, -0.003, 0.0035])
+    return _add_drift(sim, drift, {"board_temp_c": reading})
+
+
+def _slow_warmup(sim, seed: int):
+    """A warm-up far slower than the simulator's: exp(-t / 5000 s)."""
+    time_s = sim.truth["time_s"]
+    return _add_drift(sim, np.outer(np.exp(-(time_s - time_s[0]) / 5000.0), [0.1, -0.08, 0.06]))
+
+
+def _fifth_power(sim, seed: int):
+    """A T^5 term in the die temperature."""
+    x = (sim.truth["die_temp_c"] - 10.0) / 50.0
+    return _add_drift(sim, np.outer(x**5, [0.9, -0.6, 0.75]))
+
+
+def _default_model(n_centers: int = 12):
+    return lambda n_inputs: RBFNet(n_inputs, 3, n_centers, rbf_inputs=[0], linear=True, temp_degree=3, clamp=True)
+
+
+def _diagnose(path: Path, out: Path, n_centers: int = 12, **options) -> dict:
+    train_cfg = {"progress": False, **options.pop("train_cfg", {})}
+    return diagnose({"path": str(path), "rate_tau_s": 5.0}, _default_model(n_centers), out, train_cfg=train_cfg,
+                    options=options, plots=options.pop("plots", False))
+
+
+def _drift_error(bundle: Path, path: Path) -> tuple[float, dict]:
+    """RMS over axes of the 60 s drift-estimate error against the truth, and the residual report,
+    on the samples inside the trained temperature range (outside, the compensator flags them)."""
+    recording, truth = load_recording(path), load_truth(path).columns
+    out = Compensator.load(bundle).process(recording.columns)
+    inside = ~out.out_of_range
+    assert inside.mean() > 0.8
+    time_s = recording.time_s[inside]
+    true_drift = np.column_stack([truth[f"drift_{a}_dps"] for a in AXES])
+    error = block_rmse(time_s, (out.drift_dps - true_drift)[inside], 60.0)
+    report = residual_report(time_s, out.rate_dps[inside], {k: v[inside] for k, v in truth.items()})
+    return float(np.sqrt(np.mean(error**2))), report
+
+
+def _check_shape(diagnosis: dict) -> None:
+    assert set(diagnosis) == {"baseline", "effects", "final"}
+    for part in ("baseline", "final"):
+        assert set(diagnosis[part]) == {"inputs", "val_rmse_dps"}
+        assert set(diagnosis[part]["val_rmse_dps"]) == set(AXES)
+        assert all(np.isfinite(v) for v in diagnosis[part]["val_rmse_dps"].values())
+    for effect in diagnosis["effects"]:
+        assert set(effect) == CONTRACT_KEYS
+        assert effect["kind"] in {"column", "lag", "hysteresis", "polynomial", "time"}
+        assert effect["axes"] and set(effect["axes"]) <= set(AXES)
+        assert set(effect["axes"]) <= set(effect["val_rmse_before_dps"]) == set(effect["val_rmse_after_dps"])
+        assert isinstance(effect["evidence"], str) and "p = " in effect["evidence"]
+    assert len(diagnosis["final"]["inputs"]) == len(diagnosis["baseline"]["inputs"]) + len(diagnosis["effects"])
+    # the held-out numbers chain: baseline, each effect's before and after, final
+    chain = [diagnosis["baseline"]["val_rmse_dps"]]
+    for effect in diagnosis["effects"]:
+        assert effect["val_rmse_before_dps"] == chain[-1]
+        chain.append(effect["val_rmse_after_dps"])
+    assert chain[-1] == diagnosis["final"]["val_rmse_dps"]
+
+
+# ---------------------------------------------------------------------------------------- fast tests
+
+def test_candidates_come_from_every_column_whatever_its_name():
+    time_s = np.arange(0, 7200.0, 0.5)
+    columns = {"time_s": time_s, "temp_c": 20 + 10 * np.sin(time_s / 900), "gyro_x_dps": 0 * time_s,
+               "gyro_y_dps": 0 * time_s, "gyro_z_dps": 0 * time_s, "gyro_norm_dps": 0 * time_s + 1,
+               "acc_z_g": 1 + 0.01 * np.cos(time_s), "humidity_pct": 40 + time_s / 3600, "flat_v": 0 * time_s + 3.3}
+    specs = candidate_specs(Recording(columns), CandidateGrid(), exclude=[{"kind": "temp"}])
+    sources = {s["source"] for s in specs if s["kind"] == "column"}
+    # any name, the accelerometer included; never a gyro-derived column, never a constant one
+    assert sources == {"acc_z_g", "humidity_pct"}
+    kinds = {effect_kind(s) for s in specs}
+    assert kinds == {"lag", "hysteresis", "polynomial", "column", "time"}
+    # no time constant longer than half the 2 h record
+    assert max(s.get("tau_s") or 0 for s in specs) <= 3600
+    assert {"kind": "time"} in specs and len({feature_name(s) for s in specs}) == len(specs)
+    assert filter_tau({"kind": "column", "source": "acc_z_g", "tau_s": 60.0}) == 60.0
+    assert filter_tau({"kind": "column", "source": "acc_z_g", "tau_s": 0.0}) is None
+    assert filter_tau({"kind": "lag", "source": "temp_c", "tau_s": 600.0}) == 600.0
+
+
+def _synthetic(n_rows: int, seed: int, planted: float = 0.0):
+    """Smooth basis, a smooth unrelated candidate family, and a target; candidate 0 planted."""
+    rng = np.random.default_rng(seed)
+    t = np.linspace(0, 1, n_rows)
+    basis = np.column_stack([np.sin(2 * np.pi * k * t + rng.uniform(0, 6)) for k in (1, 2, 3)])
+
+    def smooth():
+        return first_order_lag(rng.standard_normal(n_rows), 1.0, 15.0) * 5
+
+    candidates = np.column_stack([smooth() for _ in range(12)])
+    target = basis @ rng.normal(size=(3, 3)) + 0.3 * rng.standard_normal((n_rows, 3))
+    target += planted * candidates[:, [0]] * np.array([[1.0, -0.5, 0.0]])
+    fold = (np.arange(n_rows) // 10) % 5
+    return basis, target, candidates, fold
+
+
+def test_screen_finds_a_planted_candidate_and_its_axes():
+    basis, target, candidates, fold = _synthetic(600, seed=0, planted=0.3)
+    names = [f"c{i}" for i in range(candidates.shape[1])]
+    result = screen(basis, target, candidates, fold, np.zeros(600, int), names, [{}] * len(names), n_shifts=99)
+    assert result.passing(0.01, 0.1).tolist()[:1] == [0]
+    assert result.axes(0, 0.01) == ["x", "y"]
+    assert (result.rmse_after[0, :2] < result.rmse_before[:2]).all()
+
+
+def test_screen_family_wise_false_positive_rate_is_controlled():
+    # 40 null data sets, 12 smooth candidates each: with alpha = 0.05 over the whole family,
+    # expect about 2 false positives; allow up to 6 (binomial 40, 0.05: P(X > 6) < 1 %)
+    hits = 0
+    for seed in range(40):
+        basis, target, candidates, fold = _synthetic(400, seed=100 + seed)
+        names = [f"c{i}" for i in range(candidates.shape[1])]
+        result = screen(basis, target, candidates, fold, np.zeros(400, int), names, [{}] * len(names),
+                        n_shifts=49, seed=seed)
+        hits += int(result.p_value.min() <= 0.05)
+    assert hits <= 6
+
+
+def test_a_lagged_noisy_column_is_screened_without_its_filter_settling():
+    # a lag filter starts on the first sample; on a noisy constant column (an accelerometer at
+    # rest) it then decays like a warm-up, which the screen must not mistake for the channel
+    rng = np.random.default_rng(3)
+    time_s = np.arange(0, 6 * 3600.0, 0.5)
+    acc = 1.0 + 0.002 * rng.standard_normal(len(time_s))
+    acc[0] = 1.01  # an unlucky first sample
+    zeros = np.zeros_like(time_s)
+    recording = Recording({"time_s": time_s, "temp_c": zeros + 20, "gyro_x_dps": zeros, "gyro_y_dps": zeros,
+                           "gyro_z_dps": zeros, "acc_z_g": acc}, {"fs_hz": "2"})
+    rows = ScreenRows.build([recording], 2.0)
+    spec = {"kind": "column", "source": "acc_z_g", "tau_s": 1800.0}
+    raw, clean = rows.features([spec], clean_start=False)[:, 0], rows.features([spec])[:, 0]
+    warmup = np.exp(-rows.time_s / 1800.0)
+    assert abs(np.corrcoef(raw, warmup)[0, 1]) > 0.95
+    assert abs(np.corrcoef(clean, warmup)[0, 1]) < 0.5
+    assert np.ptp(clean) < 0.1 * np.ptp(raw)
+
+
+def test_a_short_record_gets_honest_p_values():
+    fractions = shift_fractions(np.zeros(25, int), 199, np.random.default_rng(0))
+    assert len(fractions) == len(np.unique(fractions)) <= 21
+    basis, target, candidates, fold = _synthetic(25, seed=1, planted=3.0)
+    result = screen(basis, target, candidates, fold, np.zeros(25, int), [f"c{i}" for i in range(12)], [{}] * 12)
+    assert result.p_value.min() >= 1 / 22
+
+
+@pytest.fixture(scope="module")
+def short_aux(tmp_path_factory) -> Path:
+    """A 5 h record with an auxiliary channel ``vdd_v`` that the drift follows."""
+    sim = simulate("cycle", fs_hz=FAST_FS_HZ, seed=4, sensor_seed=1,
+                   profile_options={"setpoints_c": [25.0, -15.0, 45.0, 25.0], "dwell_s": 1200.0},
+                   effects={"aux": {"step_rate_per_h": 1.5, "gain_dps_per_v": [0.6, -0.4, 0.5]}})
+    return _write(tmp_path_factory.mktemp("diag") / "aux_short.csv", sim)
+
+
+@pytest.fixture(scope="module")
+def short_run(tmp_path_factory, short_aux) -> tuple[Path, dict]:
+    out = tmp_path_factory.mktemp("diag_run")
+    return out, _diagnose(short_aux, out, plots=True, train_cfg={"max_epochs": 1500})
+
+
+def test_the_whole_loop_finds_an_undeclared_channel(short_run):
+    out, diagnosis = short_run
+    _check_shape(diagnosis)
+    assert json.loads((out / "diagnosis.json").read_text()) == diagnosis
+    first = diagnosis["effects"][0]
+    assert (first["kind"], first["source"]) == ("column", "vdd_v")
+    before, after = (np.mean(list(first[k].values())) for k in ("val_rmse_before_dps", "val_rmse_after_dps"))
+    assert after < 0.8 * before
+    report = (out / "report.md").read_text()
+    assert "vdd_v" in report and "What this record can and cannot show" in report
+    pngs = {p.name for p in out.glob("*.png")}
+    assert {"residual_vs_time.png", "residual_vs_temperature.png"} <= pngs
+    assert any("vdd_v" in name for name in pngs)
+
+
+def test_the_final_bundle_computes_the_new_feature_causally(short_run, short_aux):
+    out, diagnosis = short_run
+    meta = json.loads((out / "compensator" / "meta.json").read_text())
+    extra = meta["features"][len(diagnosis["baseline"]["inputs"]):]
+    assert [s["source"] for s in extra][:1] == ["vdd_v"]
+    assert "vdd_v" in meta["input_columns"] and meta["feature_names"] == diagnosis["final"]["inputs"]
+    baseline_meta = json.loads((out / "baseline" / "compensator" / "meta.json").read_text())
+    assert baseline_meta["feature_names"] == diagnosis["baseline"]["inputs"]
+    recording = load_recording(short_aux)
+    n = 600
+    columns = {k: v[:n] for k, v in recording.columns.items()}
+    batch = Compensator.load(out / "compensator")
+    whole = batch.process(columns).rate_dps
+    live = Compensator.load(out / "compensator")
+    one_by_one = np.vstack([live.process({k: v[i:i + 1] for k, v in columns.items()}).rate_dps for i in range(n)])
+    np.testing.assert_allclose(one_by_one, whole, rtol=0, atol=1e-12)
+    # the extra column really is read: change it and the output changes
+    bumped = dict(columns, vdd_v=columns["vdd_v"] + 0.1)
+    assert not np.allclose(Compensator.load(out / "compensator").process(bumped).rate_dps, whole)
+
+
+def test_a_separate_recording_can_be_the_held_out_data(tmp_path, short_aux):
+    # another thermal history and another realisation of the channel, same sensor
+    other = simulate("cycle", fs_hz=FAST_FS_HZ, seed=5, sensor_seed=1,
+                     profile_options={"setpoints_c": [25.0, 40.0, -10.0, 25.0], "dwell_s": 1200.0},
+                     effects={"aux": {"step_rate_per_h": 1.5, "gain_dps_per_v": [0.6, -0.4, 0.5]}})
+    val_path = _write(tmp_path / "other.csv", other)
+    diagnosis = diagnose({"path": str(short_aux), "val_path": str(val_path), "rate_tau_s": 5.0}, _default_model(),
+                         tmp_path / "out", train_cfg={"progress": False, "max_epochs": 800},
+                         options={"n_shifts": 99, "max_effects": 1}, plots=False)
+    _check_shape(diagnosis)
+    first = diagnosis["effects"][0]
+    assert (first["kind"], first["source"]) == ("column", "vdd_v")
+    assert "a separate recording" in first["evidence"]
+
+
+def test_the_script_writes_the_contract_files(tmp_path, short_aux):
+    cmd = [sys.executable, "scripts/diagnose.py", f"data.path={short_aux}", f"hydra.run.dir={tmp_path}",
+           "train.max_epochs=300", "diagnose.n_shifts=99", "diagnose.max_effects=1"]
+    proc = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    diagnosis = json.loads((tmp_path / "diagnosis.json").read_text())
+    _check_shape(diagnosis)
+    assert [e["source"] for e in diagnosis["effects"]] == ["vdd_v"]
+    for bundle in (tmp_path / "baseline" / "compensator", tmp_path / "compensator"):
+        assert {"model.pt", "meta.json"} <= {p.name for p in bundle.iterdir()}
+    assert (tmp_path / "report.md").is_file()
+
+
+def test_the_script_reports_bad_input_in_one_line(tmp_path):
+    bad = tmp_path / "bad.csv"
+    bad.write_text("time_s,temp_c\n0,1\n")
+    proc = subprocess.run([sys.executable, "scripts/diagnose.py", f"data.path={bad}", f"hydra.run.dir={tmp_path}"],
+                          cwd=ROOT, capture_output=True, text=True)
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr
+    assert "gyro_x_dps" in proc.stderr
+
+
+def test_the_real_psim_recording_reports_what_it_can(tmp_path):
+    source = SHARED / "data" / "real" / "psim-tvc" / "TVCtest3_7_20.csv"
+    importers = pytest.importorskip("gyronet.importers")
+    if not source.is_file():
+        pytest.skip("no psim-tvc data")
+    path = tmp_path / "psim.csv"
+    importers.convert(source, path, "psim")
+    diagnosis = _diagnose(path, tmp_path / "out", plots=False, train_cfg={"max_epochs": 1000})
+    _check_shape(diagnosis)
+    # 25 five-second bursts: no p-value below 1/22, so nothing can pass at alpha = 0.01
+    assert diagnosis["effects"] == []
+    report = (tmp_path / "out" / "report.md").read_text()
+    assert "confounded" in report and "only falls" in report
+
+
+# ---------------------------------------------------------------------------------------- slow tests
+
+EFFECTS = [
+    # name, simulator effects or our own, training profile, separate profile, expected kind, source
+    ("lag2", {"lag2": {}}, "paper", "cycle", "lag", "temp_c"),
+    ("hysteresis", {"hysteresis": {}}, "cycle", "random", "hysteresis", "temp_c"),
+    ("aux", {"aux": {}}, "paper", "cycle", "column", "vdd_v"),
+    ("warmup", {"warmup": {}}, "paper", "cycle", "time", "time_s"),
+    ("ageing", {"ageing": {}}, "cycle", "random", "time", "time_s"),
+    ("board", _board_temperature, "paper", "cycle", "column", "board_temp_c"),
+    ("slow warm-up", _slow_warmup, "cycle", "random", "time", "time_s"),
+]
+
+
+def _simulate(profile: str, seed: int, effect, sensor_seed: int = 0):
+    if callable(effect):
+        return effect(simulate(profile, fs_hz=FAST_FS_HZ, seed=seed, sensor_seed=sensor_seed), seed)
+    return simulate(profile, fs_hz=FAST_FS_HZ, seed=seed, sensor_seed=sensor_seed, effects=effect)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name, effect, train_profile, check_profile, kind, source", EFFECTS,
+                         ids=[e[0] for e in EFFECTS])
+def test_an_undeclared_effect_is_found_and_halves_the_error_elsewhere(tmp_path, name, effect, train_profile,
+                                                                      check_profile, kind, source):
+    train = _write(tmp_path / "train.csv", _simulate(train_profile, 1, effect))
+    check = _write(tmp_path / "check.csv", _simulate(check_profile, 2, effect))
+    diagnosis = _diagnose(train, tmp_path / "out")
+    _check_shape(diagnosis)
+    assert diagnosis["effects"], f"{name}: nothing found"
+    first = diagnosis["effects"][0]
+    assert (first["kind"], first["source"]) == (kind, source)
+    before, before_report = _drift_error(tmp_path / "out" / "baseline" / "compensator", check)
+    after, after_report = _drift_error(tmp_path / "out" / "compensator", check)
+    assert after <= 0.5 * before, f"{name}: drift error {before:.4g} -> {after:.4g} deg/s"
+    ratios = [np.mean(list(r["ratio_to_floor"].values())) for r in (before_report, after_report)]
+    assert ratios[1] < ratios[0]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("profile", ["paper", "cycle", "random"])
+@pytest.mark.parametrize("seed", [21, 22])
+def test_a_clean_recording_gives_an_empty_list(tmp_path, profile, seed):
+    path = _write(tmp_path / "clean.csv", simulate(profile, fs_hz=FAST_FS_HZ, seed=seed, sensor_seed=seed % 7))
+    diagnosis = _diagnose(path, tmp_path / "out")
+    _check_shape(diagnosis)
+    assert diagnosis["effects"] == []
+    assert diagnosis["final"] == diagnosis["baseline"]
+
+
+@pytest.mark.slow
+def test_a_power_of_temperature_needs_capacity_not_a_new_input(tmp_path):
+    # the default network (12 Gaussians and a cubic in T) already follows a T^5 term: nothing is
+    # missing, and the baseline compensates another thermal history as well as on a clean sensor
+    train = _write(tmp_path / "t5.csv", _fifth_power(simulate("paper", fs_hz=FAST_FS_HZ, seed=1), 1))
+    check = _write(tmp_path / "t5_check.csv", _fifth_power(simulate("cycle", fs_hz=FAST_FS_HZ, seed=2), 2))
+    diagnosis = _diagnose(train, tmp_path / "default")
+    assert diagnosis["effects"] == []
+    error, _ = _drift_error(tmp_path / "default" / "baseline" / "compensator", check)
+    assert error < 0.01
+    # a network with two Gaussians cannot follow that shape: the diagnosis asks for a power of T
+    small = _diagnose(train, tmp_path / "small", n_centers=2)
+    assert small["effects"] and small["effects"][0]["kind"] == "polynomial"
+    assert small["effects"][0]["source"] == "temp_c"
