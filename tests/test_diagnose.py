@@ -64,6 +64,15 @@ def _slow_warmup(sim, seed: int):
     return _add_drift(sim, np.outer(np.exp(-(time_s - time_s[0]) / 5000.0), [0.1, -0.08, 0.06]))
 
 
+def _even_humidity(sim, seed: int):
+    """A humidity channel ``humidity_pct`` whose effect is even: (h - 40)^2, no linear trace."""
+    time_s = sim.truth["time_s"]
+    rng = np.random.default_rng([seed, 5])
+    humidity = 40.0 + ou_process(len(time_s), FAST_FS_HZ, 15.0, 3000.0, rng)
+    drift = np.outer(((humidity - 40.0) / 15.0) ** 2, [0.05, 0.0, -0.04])
+    return _add_drift(sim, drift, {"humidity_pct": np.round(humidity + 0.3 * rng.standard_normal(len(time_s)), 1)})
+
+
 def _fifth_power(sim, seed: int):
     """A T^5 term in the die temperature."""
     x = (sim.truth["die_temp_c"] - 10.0) / 50.0
@@ -126,6 +135,10 @@ def test_candidates_come_from_every_column_whatever_its_name():
     sources = {s["source"] for s in specs if s["kind"] == "column"}
     # any name, the accelerometer included; never a gyro-derived column, never a constant one
     assert sources == {"acc_z_g", "humidity_pct"}
+    squares = {s["source"]: s for s in specs if s["kind"] == "power" and s["source"] != "temp_c"}
+    assert set(squares) == sources and squares["humidity_pct"]["exponent"] == 2
+    assert squares["humidity_pct"]["centre"] == pytest.approx(np.median(columns["humidity_pct"]), rel=1e-3)
+    assert effect_kind(squares["humidity_pct"]) == "column"
     kinds = {effect_kind(s) for s in specs}
     assert kinds == {"lag", "hysteresis", "polynomial", "column", "time"}
     # no time constant longer than half the 2 h record
@@ -315,6 +328,7 @@ EFFECTS = [
     ("ageing", {"ageing": {}}, "cycle", "random", "time", "time_s"),
     ("board", _board_temperature, "paper", "cycle", "column", "board_temp_c"),
     ("slow warm-up", _slow_warmup, "cycle", "random", "time", "time_s"),
+    ("even humidity", _even_humidity, "paper", "cycle", "column", "humidity_pct"),
 ]
 
 

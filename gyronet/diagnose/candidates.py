@@ -12,7 +12,9 @@ hysteresis   ``{"kind": "hysteresis", "source": "temp_c", "width": w}``     the 
 polynomial   ``{"kind": "power", "source": "temp_c", "exponent": k,        the temperature
              "centre": c}``: powers the model's cubic and Gaussians miss
 column       ``{"kind": "column", "source": name, "tau_s": tau}`` for       every other column
-             every numeric column (``tau`` 0: the column as it is)
+             every numeric column (``tau`` 0: the column as it is), and
+             ``{"kind": "power", "source": name, "exponent": 2, ...}``
+             about its median (an effect that is even in the column)
 time         ``{"kind": "time", "tau_s": tau}`` (warm-up) and               the clock
              ``{"kind": "time"}`` (hours: ageing)
 ============ ============================================================= ====================
@@ -26,7 +28,9 @@ nothing and are left out.
 **Why powers for shape.** The default model already has Gaussians and a cubic in T; a higher
 power (4..6) about the middle of the range is one extra linear input, so the test and the
 deployed model treat it like every other candidate. More Gaussians would be a change of model
-size, which the GA sweep already owns.
+size, which the GA sweep already owns. Other columns enter the network linearly only, so a
+column whose effect is even about its usual value (a humidity or a supply that hurts in both
+directions) has no linear trace at all: its centred square is offered too.
 """
 from __future__ import annotations
 
@@ -59,6 +63,8 @@ class CandidateGrid:
         Powers of (T - middle of the range).
     column_tau_s
         Lags of every other column, s (0: the column as it is).
+    column_powers
+        Powers of every other column about its median (2: an even effect).
     time_tau_s
         Warm-up time constants, s (log grid).
     ageing
@@ -72,6 +78,7 @@ class CandidateGrid:
     hysteresis_width_c: Sequence[float] = (0.25, 0.5, 1.0, 2.0, 4.0, 8.0)
     power_exponents: Sequence[int] = (4, 5, 6)
     column_tau_s: Sequence[float] = (0, 60, 300, 1200, 3600)
+    column_powers: Sequence[int] = (2,)
     time_tau_s: Sequence[float] = (60, 180, 600, 1800, 5400, 16200)
     ageing: bool = True
     max_tau_fraction: float = 0.5
@@ -122,6 +129,9 @@ def candidate_specs(recording: Recording, grid: CandidateGrid, exclude: Sequence
     for name in source_columns(recording) if columns is None else columns:
         specs += [{"kind": "column", "source": name, "tau_s": float(t)} for t in grid.column_tau_s
                   if t <= longest]
+        median = float(np.median(recording.columns[name]))
+        specs += [{"kind": "power", "source": name, "exponent": int(k), "centre": float(f"{median:.4g}")}
+                  for k in grid.column_powers]
     specs += [{"kind": "time", "tau_s": float(t)} for t in grid.time_tau_s if 0 < t <= longest]
     if grid.ageing:
         specs.append({"kind": "time"})
@@ -137,12 +147,10 @@ def candidate_specs(recording: Recording, grid: CandidateGrid, exclude: Sequence
 
 def effect_kind(spec: Mapping[str, Any]) -> str:
     """The diagnosis kind (CONTRACT.md section 4) of a feature spec."""
-    kind = spec["kind"]
-    if kind == "power":
-        return "polynomial"
-    if kind == "lag" and spec.get("source", TEMPERATURE) != TEMPERATURE:
+    kind, other_column = spec["kind"], spec.get("source", TEMPERATURE) != TEMPERATURE
+    if kind in ("power", "lag") and other_column:
         return "column"
-    return kind
+    return "polynomial" if kind == "power" else kind
 
 
 def effect_source(spec: Mapping[str, Any]) -> str:
