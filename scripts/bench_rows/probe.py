@@ -10,7 +10,9 @@ Linux is CLOCK_MONOTONIC, one clock for both processes.
 stream: ``parser.feed`` (the bytes of a chunk were just read; its samples are stamped with that
 time), ``Compensator.process``, ``LiveWriter.write`` (the output row is written and flushed: the
 sample's latency ends), ``LiveAllan.add`` and ``LiveAllan.report`` (the last report, which
-``finish`` makes after the stream stopped, is kept apart); RSS every 1000 rows.
+``finish`` makes after the stream stopped, is kept apart); RSS every 1000 rows. The per-sample
+arrays are allocated and touched before the script starts (``max_samples=`` sizes them), so the
+probe's own memory does not show up as growth of the stream's RSS.
 emulate: ``PtySensor.write`` (the frame's last byte is in the kernel).
 """
 from __future__ import annotations
@@ -42,14 +44,17 @@ def _wrap(owner: Any, name: str, around: Callable) -> None:
 class StreamProbe:
     """Per-sample read and write times, time per stage, Allan report durations, RSS."""
 
-    def __init__(self) -> None:
+    def __init__(self, capacity: int) -> None:
         import gyronet.stream.live as live
         from gyronet.compensator import Compensator
         from gyronet.stream.events import Sample
 
         self.read_at: collections.deque[float] = collections.deque()
         # reports: LiveAllan.report durations between samples; final_report: the one finish() makes
-        self.latency, self.written_at, self.reports = array("d"), array("d"), array("d")
+        # np.full writes every element: the pages are resident now, not as the samples arrive
+        self.latency, self.written_at = np.full(capacity, np.nan), np.full(capacity, np.nan)
+        self.n_written = 0
+        self.reports = array("d")
         self.final_report = float("nan")
         self.finishing = False
         self.stage = dict.fromkeys(["parse", "process", "write", "allan_add"], 0.0)
@@ -86,8 +91,9 @@ class StreamProbe:
             original(writer, *args, **kwargs)
             done = perf()
             self.stage["write"] += done - start
-            self.written_at.append(done)
-            self.latency.append(done - self.read_at.popleft() if self.read_at else float("nan"))
+            i, self.n_written = self.n_written, self.n_written + 1
+            self.written_at[i] = done
+            self.latency[i] = done - self.read_at.popleft() if self.read_at else float("nan")
             if writer.n_rows == 1 or writer.n_rows % RSS_EVERY == 0:
                 self.rss.append((writer.n_rows, done, _rss_mb()))
 
@@ -114,7 +120,8 @@ class StreamProbe:
     def save(self, path: str) -> None:
         meta = {"stage_s": self.stage, "first_read": self.first_read, "unwritten": len(self.read_at),
                 "final_report_s": self.final_report}
-        np.savez(path, latency=np.asarray(self.latency), written_at=np.asarray(self.written_at),
+        n = self.n_written
+        np.savez(path, latency=self.latency[:n], written_at=self.written_at[:n],
                  reports=np.asarray(self.reports), rss=np.asarray(self.rss), meta=np.array(json.dumps(meta)))
 
 
@@ -141,7 +148,8 @@ class EmulateProbe:
 def main() -> int:
     mode, out_path, script, *overrides = sys.argv[1:]
     sys.path.pop(0)  # this folder: its modules must not shadow anything the script imports
-    probe = StreamProbe() if mode == "stream" else EmulateProbe()
+    sizes = [int(o.split("=", 1)[1]) for o in overrides if o.startswith("max_samples=")]
+    probe = StreamProbe(sizes[-1] if sizes else 10_000_000) if mode == "stream" else EmulateProbe()
     sys.argv = [script, *overrides]
     code: Any = 0
     try:
