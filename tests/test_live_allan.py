@@ -23,3 +23,16 @@ def test_history_is_capped():
     for k in range(5000):
         allan.add(k / 10.0, np.zeros(3))
     assert len(allan.time_s) <= 1000 and allan.time_s[-1] > 499
+
+
+@pytest.mark.parametrize("fs_hz", [10.0, 15.0, 400.0])
+def test_bins_stay_contiguous_when_a_bin_holds_one_or_few_samples(fs_hz):
+    # at 10 Hz a 0.1 s bin holds one sample: float rounding at the bin edges once left bins
+    # empty, and the Allan report then used only the longest gap-free stretch
+    n = int(3600 * fs_hz)
+    allan = LiveAllan(None, every_s=1e9, fs_hz=fs_hz)
+    for k in range(n):
+        allan.add(1000.0 + k / fs_hz, np.zeros(3))
+    allan.finish()
+    steps = np.diff(allan.time_s)
+    assert np.allclose(steps, allan.bin_s) and len(allan.time_s) == pytest.approx(3600 / allan.bin_s, abs=1)

@@ -107,7 +107,9 @@ class LiveAllan:
         if self._start_s is None:
             self._start_s = float(time_s)
             self.next_s = time_s + self.every_s
-        index = int((time_s - self._start_s) // self.bin_s)
+        # bin edges half a sample before the nominal ones: a sample on a regular grid never falls
+        # on an edge, where float rounding would put two samples in one bin and none in the next
+        index = int((time_s - self._start_s + 0.5 / self.fs_hz) // self.bin_s)
         if index != self._bin:
             self._close_bin()
             self._bin = index
