@@ -21,6 +21,10 @@ from gyronet.features import FeatureExtractor
 
 log = logging.getLogger(__name__)
 
+# Rows per model call on a long batch: intermediates of 64 k rows stay in cache, which makes a
+# whole recording about six times faster than one call on all of it (scripts/bench.py).
+CHUNK_ROWS = 65536
+
 
 class Compensated(NamedTuple):
     """Output of ``Compensator.process`` for n samples."""
@@ -65,9 +69,11 @@ class Compensator:
 
     def drift(self, columns: Mapping[str, np.ndarray]) -> np.ndarray:
         """Drift estimate (n, 3), deg/s, advancing the feature state."""
-        features = self.extractor.process(columns)
+        features = torch.from_numpy(self.extractor.process(columns))
         with torch.no_grad():
-            return self.model(torch.from_numpy(features)).numpy()
+            if len(features) <= CHUNK_ROWS:
+                return self.model(features).numpy()
+            return torch.cat([self.model(chunk) for chunk in features.split(CHUNK_ROWS)]).numpy()
 
     def process(self, columns: Mapping[str, np.ndarray]) -> Compensated:
         """Compensate the next samples; ``columns`` maps each of ``input_columns`` to an array (n,)."""

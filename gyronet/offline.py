@@ -8,6 +8,7 @@ import numpy as np
 
 from gyronet.compensator import Compensated, Compensator
 from gyronet.data import AXES, GYRO_COLUMNS, Recording, load_recording, write_recording
+from gyronet.fastcsv import write_csv
 
 log = logging.getLogger(__name__)
 
@@ -22,6 +23,15 @@ def output_columns(time_s: np.ndarray, temp_c: np.ndarray, out: Compensated) -> 
     return columns
 
 
+def write_compensated(path: str | Path, columns: dict[str, np.ndarray], bundle_dir: str | Path) -> Path:
+    """Write a compensated file: 12 significant digits of each column's largest value (the
+    vectorised writer), or pandas' ``%.12g`` per value if a column is not finite."""
+    meta = {"compensated_by": Path(bundle_dir).resolve()}
+    if all(np.isfinite(v).all() for v in columns.values()):
+        return write_csv(path, columns, meta, significant=12)
+    return write_recording(path, columns, meta, float_format="%.12g")
+
+
 def compensate_recording(compensator: Compensator, recording: Recording) -> Compensated:
     """Compensate a whole recording from a fresh state (as a stream that starts with its first sample)."""
     compensator.check_columns(recording.columns, source=str(recording.path))
@@ -34,8 +44,7 @@ def compensate_file(bundle_dir: str | Path, input_path: str | Path, output_path:
     compensator = Compensator.load(bundle_dir)
     recording = load_recording(input_path)
     out = compensate_recording(compensator, recording)
-    write_recording(output_path, output_columns(recording.time_s, recording.temp_c, out),
-                    {"compensated_by": Path(bundle_dir).resolve()}, float_format="%.12g")
+    write_compensated(output_path, output_columns(recording.time_s, recording.temp_c, out), bundle_dir)
     n_oor = int(out.out_of_range.sum())
     if n_oor:
         low, high = compensator.temp_range_c

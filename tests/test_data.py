@@ -4,6 +4,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 import pytest
 
 from gyronet.data import (GYRO_COLUMNS, block_means, load_recording, split_by_time, truth_path,
@@ -98,3 +99,19 @@ def test_block_means_and_truth_path(tmp_path):
     means = block_means(np.column_stack([time_s, -time_s]), time_s, 60.0)
     np.testing.assert_allclose(means[:, 0], [29.95, 89.95])
     assert truth_path(tmp_path / "F.csv").name == "F.truth.csv"
+
+
+def test_compensated_files_keep_twelve_significant_digits(tmp_path):
+    from gyronet.offline import write_compensated
+
+    rng = np.random.default_rng(0)
+    columns = {"time_s": np.arange(5000) / 10.0, "gyro_x_dps": rng.normal(0, 0.3, 5000),
+               "gyro_y_dps": rng.normal(0, 10.0, 5000), "out_of_range": (rng.random(5000) > 0.9).astype(np.int8)}
+    with_nan = {**columns, "gyro_x_dps": np.r_[np.nan, columns["gyro_x_dps"][1:]]}  # the pandas fallback
+    for name, values in (("fast.csv", columns), ("nan.csv", with_nan)):
+        back = pd.read_csv(write_compensated(tmp_path / name, values, tmp_path), comment="#")
+        assert list(back.columns) == list(columns)
+        for key, value in values.items():
+            scale = np.nanmax(np.abs(value))
+            np.testing.assert_allclose(back[key].to_numpy(), value, rtol=0, atol=1e-11 * scale)
+        assert open(tmp_path / name).readline().startswith("# compensated_by=")

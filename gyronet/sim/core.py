@@ -13,7 +13,7 @@ import numpy as np
 
 from gyronet.data import AXES, truth_path, write_recording
 from gyronet.errors import GyronetError
-from gyronet.sim._csv import write_csv
+from gyronet.fastcsv import write_csv
 from gyronet.sim.effects import apply_effect
 from gyronet.sim.noise import NoiseSpec, earth_rate_dps, gravity_g, gyro_noise_dps, quantise
 from gyronet.sim.profiles import chamber_profile
@@ -257,7 +257,7 @@ def write_simulation(sim: Simulation, path: str | os.PathLike, fast: bool = True
     path
         The recording's CSV path.
     fast
-        Use the vectorised writer (:mod:`gyronet.sim._csv`, same format and 9 significant digits
+        Use the vectorised writer (:mod:`gyronet.fastcsv`, same format and 9 significant digits
         of each column's largest value); False uses :func:`gyronet.data.write_recording`
         (``%.9g``, several times slower).
 

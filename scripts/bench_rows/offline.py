@@ -87,16 +87,15 @@ def _profile_top(bundle: Path, columns: dict[str, np.ndarray], n: int = 4) -> li
 def _io_split(bundle: Path, csv: Path, out_csv: Path) -> dict[str, float]:
     """compensate_file's steps, timed apart in-process: load, compensate, write."""
     from gyronet.compensator import Compensator
-    from gyronet.data import load_recording, write_recording
-    from gyronet.offline import compensate_recording, output_columns
+    from gyronet.data import load_recording
+    from gyronet.offline import compensate_recording, output_columns, write_compensated
 
     start = time.perf_counter()
     compensator = Compensator.load(bundle)
     recording = load_recording(csv)
     load_s = time.perf_counter() - start
     process_s, out = timed(compensate_recording, compensator, recording)
-    write_s, _ = timed(write_recording, out_csv, output_columns(recording.time_s, recording.temp_c, out),
-                       {"compensated_by": str(bundle)}, float_format="%.12g")
+    write_s, _ = timed(write_compensated, out_csv, output_columns(recording.time_s, recording.temp_c, out), bundle)
     return {"load_s": load_s, "process_s": process_s, "write_s": write_s}
 
 

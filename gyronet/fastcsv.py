@@ -1,10 +1,11 @@
 """A fast CSV writer for long numeric columns, in the format of :func:`gyronet.data.write_recording`.
 
 ``pandas.DataFrame.to_csv`` with ``float_format="%.9g"`` formats one cell at a time (about
-25 s for the paper profile's recording and truth). Here each column is written in fixed point
-with enough decimals for 9 significant digits of its largest value, by vectorised digit
-extraction into a byte matrix whose padding is then dropped: about ten times faster. Leading
-and trailing zeros are dropped, so ``0.5`` is ``0.5`` and ``12.0`` is ``12``.
+25 s for the paper profile's recording and truth, 12 s for a 3.6 M-sample compensated file).
+Here each column is written in fixed point with enough decimals for ``significant`` digits of
+its largest value, by vectorised digit extraction into a byte matrix whose padding is then
+dropped: about ten times faster. Leading and trailing zeros are dropped, so ``0.5`` is ``0.5``
+and ``12.0`` is ``12``.
 """
 from __future__ import annotations
 
