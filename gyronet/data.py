@@ -261,11 +261,13 @@ def block_means(values: np.ndarray, time_s: np.ndarray, block_s: float = 60.0,
 
 
 def split_by_time(time_s: np.ndarray, val_fraction: float = 0.2, n_blocks: int = 10,
-                  ) -> tuple[np.ndarray, np.ndarray]:
+                  fold: int | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Train and validation masks from contiguous time blocks, never random samples.
 
-    The record is cut into ``n_blocks`` equal spans of time and every k-th span, starting with the
-    one at the centre offset, is held out, so that validation covers the whole temperature history.
+    The record is cut into ``n_blocks`` equal spans of time and every k-th span (k = 1 /
+    ``val_fraction``), starting with span ``fold`` (default: the centre offset, k // 2), is held
+    out, so that validation covers the whole temperature history; folds 0 .. k-1 together hold
+    out every span once (cross-validation).
 
     Returns
     -------
@@ -277,5 +279,5 @@ def split_by_time(time_s: np.ndarray, val_fraction: float = 0.2, n_blocks: int =
     span_s = (time_s[-1] - time_s[0]) / n_blocks * (1 + 1e-12)
     block = time_blocks(time_s, span_s)
     step = max(2, int(round(1.0 / val_fraction)))
-    val = (block % step) == (step // 2)
+    val = (block % step) == (step // 2 if fold is None else fold % step)
     return ~val, val

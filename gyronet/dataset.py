@@ -105,8 +105,9 @@ class DriftData:
         Feature specs (``gyronet.features``); the paper's T, dT/dt and T*dT/dt by default.
     block_s
         Averaging block for training, s.
-    val_fraction, n_blocks
-        Hold out ``val_fraction`` of the record as whole time blocks out of ``n_blocks``.
+    val_fraction, n_blocks, val_fold
+        Hold out ``val_fraction`` of the record as whole time blocks out of ``n_blocks``; ``val_fold``
+        picks which of the 1 / ``val_fraction`` interleaved sets (default: the middle one).
     val_path
         A separate validation recording instead (a different thermal history): preferred.
     static_rate_dps
@@ -120,6 +121,7 @@ class DriftData:
     block_s: float = 10.0
     val_fraction: float = 0.2
     n_blocks: int = 10
+    val_fold: int | None = None
     val_path: str | None = None
     static_rate_dps: Sequence[float] | None = None
     rate_tau_s: float | None = None
@@ -142,7 +144,7 @@ class DriftData:
             self.val = to_blocks(val_rec.time_s, val_x, val_y, self.block_s)
             self.val_full = (val_rec.time_s, val_x, val_y)
         else:
-            train_mask, val_mask = split_by_time(time_s, self.val_fraction, self.n_blocks)
+            train_mask, val_mask = split_by_time(time_s, self.val_fraction, self.n_blocks, self.val_fold)
             # block means never straddle a split edge: average within each side separately
             self.train = to_blocks(time_s[train_mask], full_x[train_mask], full_y[train_mask], self.block_s)
             self.val = to_blocks(time_s[val_mask], full_x[val_mask], full_y[val_mask], self.block_s)

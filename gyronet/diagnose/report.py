@@ -102,7 +102,7 @@ def _held_out_hours(stage: Any, record: int) -> list[tuple[float, float]]:
     if record or data.val_path:
         return []
     time_s = data.recording.time_s
-    _, val = split_by_time(time_s, data.val_fraction, data.n_blocks)
+    _, val = split_by_time(time_s, data.val_fraction, data.n_blocks, data.val_fold)
     edges = np.flatnonzero(np.diff(np.concatenate([[0], val.astype(int), [0]])))
     hours = (time_s - time_s[0]) / 3600.0
     return [(hours[a], hours[b - 1]) for a, b in zip(edges[::2], edges[1::2])]
@@ -194,7 +194,7 @@ def write_report(out_dir: Path, diagnosis: Mapping[str, Any], details: Mapping[s
               f"{training.temp_c.min():.1f} to {training.temp_c.max():.1f} degC.", "",
               "Declared inputs: " + ", ".join(f"`{n}`" for n in diagnosis["baseline"]["inputs"]) + ".", ""]
     lines += ["## Result", "", "Held-out 60 s residual of the networks, deg/s "
-              f"({'the separate validation recording' if record else 'held-out time blocks'}):", "",
+              f"({'the separate validation recording' if record else 'held-out time blocks, pooled over the cross-validation folds'}):", "",
               "| model | " + " | ".join(AXES) + " |", "| --- | --- | --- | --- |",
               _rmse_row("baseline", diagnosis["baseline"]["val_rmse_dps"]),
               _rmse_row("final", diagnosis["final"]["val_rmse_dps"]), ""]
