@@ -11,6 +11,7 @@ import numpy as np
 from gyronet.allan import allan_report
 from gyronet.compensator import Compensator
 from gyronet.data import AXES, load_recording, load_truth, truth_path
+from gyronet.dataset import block_rmse
 from gyronet.offline import compensate_recording
 from gyronet.train import residual_report
 
@@ -27,18 +28,19 @@ def table_rows(input_path: str | Path, bundles: Mapping[str, str | Path]) -> dic
     """Raw and each bundle's compensated output on ``input_path``: N, B, and truth residuals if known."""
     recording = load_recording(input_path)
     truth = load_truth(input_path).columns if truth_path(input_path).is_file() else None
-    rows = {"Raw": _row(recording.time_s, recording.gyro_dps, truth)}
+    rows = {"Raw": _row(recording.time_s, recording.gyro_dps, truth, np.zeros_like(recording.gyro_dps))}
     if truth is not None:
         noise = np.column_stack([truth[f"noise_{a}_dps"] for a in AXES])
         rows["Noise only (truth)"] = _row(recording.time_s, noise, None)
     for name, bundle in bundles.items():
         log.info("table: %s <- %s", name, bundle)
         out = compensate_recording(Compensator.load(bundle), recording)
-        rows[name] = _row(recording.time_s, out.rate_dps, truth)
+        rows[name] = _row(recording.time_s, out.rate_dps, truth, out.drift_dps)
     return rows
 
 
-def _row(time_s: np.ndarray, rate_dps: np.ndarray, truth: Mapping[str, np.ndarray] | None) -> dict[str, Any]:
+def _row(time_s: np.ndarray, rate_dps: np.ndarray, truth: Mapping[str, np.ndarray] | None,
+         drift_dps: np.ndarray | None = None) -> dict[str, Any]:
     report = allan_report(time_s, rate_dps)
     row: dict[str, Any] = {
         "arw_deg_rthr": [report[a]["arw_deg_rthr"] for a in AXES],
@@ -48,6 +50,9 @@ def _row(time_s: np.ndarray, rate_dps: np.ndarray, truth: Mapping[str, np.ndarra
         residual = residual_report(time_s, rate_dps, truth)
         row["ratio_to_floor"] = [residual["ratio_to_floor"][a] for a in AXES]
         row["residual_dps"] = [residual["residual_dps"][a] for a in AXES]
+        if drift_dps is not None:  # the drift estimate against the true drift, 60 s blocks
+            true_drift = np.column_stack([truth[f"drift_{a}_dps"] for a in AXES])
+            row["drift_error_dps"] = block_rmse(time_s, drift_dps - true_drift, 60.0).tolist()
     return row
 
 
