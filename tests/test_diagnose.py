@@ -73,6 +73,24 @@ def _even_humidity(sim, seed: int):
     return _add_drift(sim, drift, {"humidity_pct": np.round(humidity + 0.3 * rng.standard_normal(len(time_s)), 1)})
 
 
+def _tilted_fixture(sim, seed: int):
+    """g-sensitivity: the fixture is tilted between dwells, ``acc_x_g`` follows, the drift goes with it."""
+    time_s = sim.truth["time_s"]
+    rng = np.random.default_rng([seed, 9])
+    acc_x_g = rng.uniform(-0.7, 0.7, int(time_s[-1] // 2700) + 1)[(time_s // 2700).astype(int)]
+    sim.recording["acc_x_g"] = acc_x_g + 0.002 * rng.standard_normal(len(time_s))
+    return _add_drift(sim, np.outer(acc_x_g, [0.0, 0.06, 0.05]))
+
+
+def _supply_current(sim, seed: int):
+    """Supply current steps (operating modes) ``supply_a``; the drift follows through a 120 s lag."""
+    time_s = sim.truth["time_s"]
+    rng = np.random.default_rng([seed, 3])
+    current_a = rng.choice([0.05, 0.12, 0.2], int(time_s[-1] // 1500) + 1)[(time_s // 1500).astype(int)]
+    drift = np.outer(first_order_lag(current_a, FAST_FS_HZ, 120.0) - 0.12, [0.6, 0.5, 0.0])
+    return _add_drift(sim, drift, {"supply_a": current_a + 0.002 * rng.standard_normal(len(time_s))})
+
+
 def _fifth_power(sim, seed: int):
     """A T^5 term in the die temperature."""
     x = (sim.truth["die_temp_c"] - 10.0) / 50.0
@@ -333,6 +351,8 @@ EFFECTS = [
     ("board", _board_temperature, "paper", "cycle", "column", "board_temp_c"),
     ("slow warm-up", _slow_warmup, "cycle", "random", "time", "time_s"),
     ("even humidity", _even_humidity, "paper", "cycle", "column", "humidity_pct"),
+    ("tilt", _tilted_fixture, "paper", "cycle", "column", "acc_x_g"),
+    ("supply current", _supply_current, "random", "cycle", "column", "supply_a"),
 ]
 
 
@@ -362,6 +382,19 @@ def test_an_undeclared_effect_is_found_and_halves_the_error_elsewhere(tmp_path, 
 
 
 @pytest.mark.slow
+def test_two_undeclared_effects_are_both_found(tmp_path):
+    effects = {"aux": {}, "lag2": {}}
+    train = _write(tmp_path / "train.csv", _simulate("paper", 1, effects))
+    check = _write(tmp_path / "check.csv", _simulate("cycle", 2, effects))
+    diagnosis = _diagnose(train, tmp_path / "out")
+    _check_shape(diagnosis)
+    assert {(e["kind"], e["source"]) for e in diagnosis["effects"]} >= {("column", "vdd_v"), ("lag", "temp_c")}
+    before, _ = _drift_error(tmp_path / "out" / "baseline" / "compensator", check)
+    after, _ = _drift_error(tmp_path / "out" / "compensator", check)
+    assert after <= 0.2 * before, f"drift error {before:.4g} -> {after:.4g} deg/s"
+
+
+@pytest.mark.slow
 @pytest.mark.parametrize("profile", ["paper", "cycle", "random"])
 @pytest.mark.parametrize("seed", [21, 22])
 def test_a_clean_recording_gives_an_empty_list(tmp_path, profile, seed):
@@ -370,6 +403,15 @@ def test_a_clean_recording_gives_an_empty_list(tmp_path, profile, seed):
     _check_shape(diagnosis)
     assert diagnosis["effects"] == []
     assert diagnosis["final"] == diagnosis["baseline"]
+
+
+@pytest.mark.slow
+def test_a_channel_the_drift_does_not_follow_is_not_reported(tmp_path):
+    # the supply wanders, steps and tracks the chamber a little, but the gyro ignores it
+    sim = simulate("paper", fs_hz=FAST_FS_HZ, seed=23, sensor_seed=6,
+                   effects={"aux": {"gain_dps_per_v": [0.0, 0.0, 0.0], "temp_coeff_per_c": 0.001}})
+    diagnosis = _diagnose(_write(tmp_path / "null.csv", sim), tmp_path / "out")
+    assert diagnosis["effects"] == []
 
 
 @pytest.mark.slow
