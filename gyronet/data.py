@@ -260,6 +260,11 @@ def block_means(values: np.ndarray, time_s: np.ndarray, block_s: float = 60.0,
     return means.reshape((-1,) + values.shape[1:])
 
 
+def fold_count(val_fraction: float) -> int:
+    """How many interleaved validation sets ``split_by_time`` has for ``val_fraction`` (1 in k held out)."""
+    return max(2, int(round(1.0 / val_fraction)))
+
+
 def split_by_time(time_s: np.ndarray, val_fraction: float = 0.2, n_blocks: int = 10,
                   fold: int | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Train and validation masks from contiguous time blocks, never random samples.
@@ -278,6 +283,6 @@ def split_by_time(time_s: np.ndarray, val_fraction: float = 0.2, n_blocks: int =
         raise ValueError(f"val_fraction must be in (0, 1), got {val_fraction}")
     span_s = (time_s[-1] - time_s[0]) / n_blocks * (1 + 1e-12)
     block = time_blocks(time_s, span_s)
-    step = max(2, int(round(1.0 / val_fraction)))
+    step = fold_count(val_fraction)
     val = (block % step) == (step // 2 if fold is None else fold % step)
     return ~val, val

@@ -8,10 +8,10 @@
    feature, retrain the network, refine again with the retrained network, and **confirm**: the
    retrained network's own held-out residual must drop by at least ``confirm_gain``. The first
    that confirms is kept and the loop goes back to 3; if none does, it stops.
-   The network's held-out residual is cross-validated: one network per interleaved set of time
-   blocks (``data.val_fraction``: 5 sets), each scored on the set it did not see, pooled. A
-   single held-out set (two spans of a tenth of the record) would miss effects that live in one
-   part of the record, like a warm-up in the first half hour.
+   The network's held-out residual is cross-validated on the screen's folds: one network per
+   set of interleaved ``span_s`` spans, each scored on the set it did not see, pooled. One
+   held-out set alone would miss effects that live in one part of the record, like a warm-up
+   in the first half hour.
 5. Save the final network as a bundle whose ``meta.json`` lists the extra feature specs, so the
    deployed compensator computes them through the same causal code, offline and live.
 
@@ -39,7 +39,7 @@ from typing import Any, Callable, Mapping, Sequence
 import numpy as np
 import torch
 
-from gyronet.data import AXES, load_recording, time_blocks
+from gyronet.data import AXES, fold_count, load_recording, time_blocks
 from gyronet.dataset import DriftData, block_rmse
 from gyronet.errors import GyronetError
 from gyronet.diagnose.candidates import (CandidateGrid, candidate_specs, effect_kind, effect_params,
@@ -119,7 +119,7 @@ class Stage:
     model: torch.nn.Module
     data: DriftData
     metrics: dict[str, float]
-    held_out: dict[str, float] | None = None  # 60 s residual per axis, cross-validated (``_Trainer.confirm``)
+    held_out: dict[str, float] | None = None  # 60 s residual per axis (``_Trainer.cross_validate``)
 
     def val_rmse(self) -> dict[str, float]:
         if self.held_out is None:
@@ -153,16 +153,17 @@ class _Trainer:
                   ", ".join(f"{a}={metrics[f'val/rmse_{a}_dps']:.4g}" for a in AXES))
         return Stage(model, data, metrics)
 
-    def confirm(self, stage: Stage) -> Stage:
+    def cross_validate(self, stage: Stage) -> Stage:
         """Set ``stage.held_out``: the residual on the separate recording, or pooled over one network
-        per cross-validation fold, each scored on the fold it did not see. Only samples inside the
-        temperatures the network was trained on count: a fold that holds out the record's only
-        -40 degC dwell would otherwise score every network by the same extrapolation error."""
+        per cross-validation fold, each scored on the fold it did not see. Only blocks inside the
+        temperatures the network was trained on count: held-out blocks at the record's coldest
+        or hottest would otherwise score every network by the same extrapolation error."""
         data = stage.data
-        folds = [None] if data.val_path else range(max(2, int(round(1.0 / data.val_fraction))))
+        folds = [None] if data.val_path else range(fold_count(data.val_fraction))
+        default = fold_count(data.val_fraction) // 2 if data.val_fold is None else data.val_fold
         squares, weights = np.zeros(len(AXES)), 0
         for fold in folds:
-            trained = stage if fold in (None, _default_fold(data)) else self(data.features, val_fold=fold)
+            trained = stage if fold in (None, default) else self(data.features, val_fold=fold)
             rmse, n_inside = _held_out_inside(trained)
             squares, weights = squares + n_inside * rmse**2, weights + n_inside
         stage.held_out = dict(zip(AXES, np.sqrt(squares / max(weights, 1)).tolist()))
@@ -188,12 +189,6 @@ def _held_out_inside(stage: Stage) -> tuple[np.ndarray, int]:
     with torch.no_grad():
         residual = y[inside] - stage.model(torch.as_tensor(x[inside], dtype=torch.float64)).numpy()
     return block_rmse(time_s[inside], residual, 60.0), int(inside.sum())
-
-
-def _default_fold(data: DriftData) -> int:
-    """The fold ``DriftData`` holds out when not told (``split_by_time``'s default)."""
-    step = max(2, int(round(1.0 / data.val_fraction)))
-    return step // 2 if data.val_fold is None else data.val_fold % step
 
 
 def _attempt(choice: Choice, stage: Stage, train: _Trainer, rows: ScreenRows, basis: tuple, ridge: float,
@@ -255,7 +250,7 @@ def diagnose(data_options: Mapping[str, Any], make_model: Callable[[int], torch.
     # span_s, one in n_folds held out, so every fold's training sees every dwell of the history
     data_options = {**data_options, "n_blocks": n_spans, "val_fraction": 1.0 / options.n_folds}
     train = _Trainer(data_options, make_model, optim, dict(train_cfg or {}), seed)
-    stage = train.confirm(train())
+    stage = train.cross_validate(train())
     stages = [stage]
     save_bundle(stage.model, _meta(stage.model, stage.data), out_dir / "baseline" / "compensator")
 
@@ -292,7 +287,7 @@ def diagnose(data_options: Mapping[str, Any], make_model: Callable[[int], torch.
         kept = None
         for choice in ranked(result, passing, rows, basis, options.refine_top, longest_s) if len(passing) else []:
             choice, trained = _attempt(choice, stage, train, rows, basis, result.ridge, options, longest_s)
-            confirmed = train.confirm(trained).gain_over(stage)
+            confirmed = train.cross_validate(trained).gain_over(stage)
             round_["tried"].append({"spec": choice.spec, "score": choice.score, "confirm": confirmed})
             log.info("%s: screen score %.3g, retrained held-out score %.3g (%s)", feature_name(choice.spec),
                      choice.score, confirmed, "kept" if confirmed >= options.confirm_gain else "not confirmed")
