@@ -13,7 +13,6 @@ import numpy as np
 from .harness import ROOT, Context, bench, paper_recording, row, run_command, timed, trained_bundle
 
 SAMPLES_GOAL_PER_S = 1e6
-CHUNK_ROWS = 1 << 16
 
 
 def _long_columns(ctx: Context) -> dict[str, np.ndarray]:
@@ -45,7 +44,7 @@ def _breakdown(bundle: Path, columns: dict[str, np.ndarray]) -> dict[str, float]
     """Best-of-2 seconds in features, the TorchScript model, and the rest of Compensator.process."""
     import torch
 
-    from gyronet.compensator import Compensator
+    from gyronet.compensator import CHUNK_ROWS, Compensator
 
     compensator = Compensator.load(bundle)
 
@@ -61,15 +60,16 @@ def _breakdown(bundle: Path, columns: dict[str, np.ndarray]) -> dict[str, float]
             for start in range(0, len(inputs), chunk):
                 compensator.model(inputs[start:start + chunk])
 
-    model_s, _ = timed(model, len(inputs), repeat=2)
+    model_s, _ = timed(model, CHUNK_ROWS, repeat=2)  # as Compensator.drift calls it
     threads = torch.get_num_threads()
-    chunked_s, _ = timed(model, CHUNK_ROWS, repeat=2)
+    one_call_s, _ = timed(model, len(inputs), repeat=2)
     torch.set_num_threads(1)
     chunked_1t_s, _ = timed(model, CHUNK_ROWS, repeat=2)
-    whole_1t_s, _ = timed(model, len(inputs), repeat=2)
+    one_call_1t_s, _ = timed(model, len(inputs), repeat=2)
     torch.set_num_threads(threads)
-    return {"features_s": features_s, "model_s": model_s, "model_chunked_s": chunked_s,
-            "model_1thread_s": whole_1t_s, "model_chunked_1thread_s": chunked_1t_s, "torch_threads": threads}
+    return {"features_s": features_s, "model_s": model_s, "model_one_call_s": one_call_s,
+            "model_1thread_s": chunked_1t_s, "model_one_call_1thread_s": one_call_1t_s, "torch_threads": threads,
+            "chunk_rows": CHUNK_ROWS}
 
 
 def _profile_top(bundle: Path, columns: dict[str, np.ndarray], n: int = 4) -> list[str]:
@@ -136,9 +136,9 @@ def compensate_batch(ctx: Context) -> dict[str, Any]:
     goal = "met" if rate >= SAMPLES_GOAL_PER_S else "NOT met"
     notes = (f"{n} samples ({ctx.size(8, 2)} x paper tiled): {rate / 1e6:.2f} M samples/s (goal >= 1 M/s: {goal}) vs "
              f"poly3 {n / process_s['poly3'] / 1e6:.2f} M/s; process = features {parts['features_s']:.2f} s + model "
-             f"{parts['model_s']:.2f} s ({parts['torch_threads']} torch threads; in {CHUNK_ROWS}-row chunks "
-             f"{parts['model_chunked_s']:.2f} s, 1 thread {parts['model_1thread_s']:.2f} s, chunks + 1 thread "
-             f"{parts['model_chunked_1thread_s']:.2f} s) + rest {parts['rest_s']:.2f} s; compensate.py "
+             f"{parts['model_s']:.2f} s (in {parts['chunk_rows']}-row chunks, {parts['torch_threads']} torch threads; "
+             f"one call on all rows {parts['model_one_call_s']:.2f} s; 1 thread {parts['model_1thread_s']:.2f} s, "
+             f"one call {parts['model_one_call_1thread_s']:.2f} s) + rest {parts['rest_s']:.2f} s; compensate.py "
              f"{cli_s['default']:.1f} s (poly3 {cli_s['poly3']:.1f} s), of which I/O ~{io_s:.1f} s "
              f"({io_s / cli_s['default']:.0%}: load {io['load_s']:.1f} s, write {io['write_s']:.1f} s)")
     return row("compensate_batch", process_s["default"], process_s["poly3"], notes, n_samples=n,
