@@ -30,7 +30,8 @@ def lr_at(step: int, total_steps: int, base_lr: float, warmup_steps: int = 50, f
 
 def _predict(model: torch.nn.Module, x: np.ndarray) -> np.ndarray:
     with torch.no_grad():
-        return model(torch.as_tensor(x, dtype=torch.float64)).numpy()
+        # a copy: the cached full-rate features are read-only, which torch warns about
+        return model(torch.tensor(x, dtype=torch.float64)).numpy()
 
 
 def validation_metrics(model: torch.nn.Module, data: DriftData, full_rate: bool = True) -> dict[str, float]:

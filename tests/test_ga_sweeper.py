@@ -202,6 +202,18 @@ def test_sweep_writes_history_results_and_best(app: Path) -> None:
     assert list((app / "sweep" / "tb").glob("events.out.tfevents.*"))
 
 
+def test_generation_zero_starts_from_the_config(app: Path) -> None:
+    # x = 0 as the app's config has it; y = 9 lies outside y's space and is clipped to 5
+    config = app / "conf" / "config.yaml"
+    config.write_text(config.read_text().replace("y: 0.0", "y: 9.0"))
+    run_app(app, "hydra.sweeper.generations=1")
+    first = history(app)["generations"][0]["individuals"]
+    assert first[0]["params"] == {"x": 0.0, "y": 5.0}
+    assert all(e["params"] != {"x": 0.0, "y": 5.0} for e in first[1:])
+    run_app(app, "hydra.sweeper.generations=1", "hydra.sweeper.start_from_config=false", sweep="random")
+    assert history(app, "random")["generations"][0]["individuals"][0]["params"] != {"x": 0.0, "y": 5.0}
+
+
 def test_failed_jobs_score_inf_and_the_sweep_goes_on(app: Path) -> None:
     # y from the command line replaces the app's interval with a choice
     run_app(app, "fail=positive_x", "hydra.sweeper.max_failure_rate=1.0", "y=choice(-1, 0, 1)")

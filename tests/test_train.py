@@ -5,6 +5,7 @@ import sys
 
 import numpy as np
 import pytest
+from omegaconf import OmegaConf
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
 from gyronet.compensator import Compensator
@@ -97,3 +98,25 @@ def test_default_model_removes_drift_on_a_different_thermal_history(bundle, cycl
     truth = load_truth(cycle_csv).columns
     ratio = residual_report(recording.time_s, out.rate_dps, truth)["ratio_to_floor"]
     assert max(ratio.values()) < 2.0, ratio
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("launcher", ["basic", "joblib"])
+def test_ga_sweep_of_the_real_training_gives_a_best_bundle_that_transfers(tmp_path, paper_csv, cycle_csv, launcher):
+    sweep = tmp_path / "sweep"
+    cmd = [sys.executable, "scripts/train.py", "-m", "hydra/sweeper=ga", f"hydra/launcher={launcher}",
+           f"data.path={paper_csv}", f"hydra.sweep.dir={sweep}", "hydra.sweeper.population_size=4",
+           "hydra.sweeper.generations=2", "train.max_epochs=600", "train.progress=false"]
+    proc = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    history = json.loads((sweep / "ga_history.json").read_text())
+    assert len(history["generations"]) == 2
+    individuals = [i for g in history["generations"] for i in g["individuals"]]
+    assert len(individuals) == 8 and all(i["status"] == "COMPLETED" for i in individuals)
+    results = OmegaConf.load(sweep / "optimization_results.yaml")
+    assert results.best_evaluated_result == pytest.approx(min(i["fitness"] for i in individuals))
+    # the best bundle compensates another thermal history of the same sensor
+    recording = load_recording(cycle_csv)
+    out = Compensator.load(sweep / "best" / "compensator").process(recording.columns)
+    ratio = residual_report(recording.time_s, out.rate_dps, load_truth(cycle_csv).columns)["ratio_to_floor"]
+    assert max(ratio.values()) < 1.5, ratio

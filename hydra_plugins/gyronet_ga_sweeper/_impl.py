@@ -53,6 +53,7 @@ class GAOptions:
     elitism: int
     seed: int
     max_failure_rate: float
+    start_from_config: bool
     resume: bool
     best_artifact: Optional[str]
 
@@ -180,6 +181,9 @@ class GASweeperImpl(Sweeper):
         opts = self.options
         if index == 0:
             population = [random_individual(space, rng) for _ in range(opts.population_size)]
+            start = self._config_individual(space) if opts.start_from_config else None
+            if start is not None:
+                population[0] = start
         else:
             last = history.generations[-1]
             population = next_generation(
@@ -188,6 +192,22 @@ class GASweeperImpl(Sweeper):
                 crossover_rate=opts.crossover_rate, mutation_rate=opts.mutation_rate,
                 mutation_scale=opts.mutation_scale, size=opts.population_size)
         return [tidy(ind, space) for ind in population]
+
+    def _config_individual(self, space: List[Param]) -> Optional[Individual]:
+        """The application's config values for the searched keys, numbers clipped into their
+        bounds; None when a key has no plain value there (a config group) or a choice misses it."""
+        values: Individual = {}
+        for p in space:
+            value = OmegaConf.select(self.config, p.name, default=None)
+            if isinstance(value, (int, float)) and not isinstance(value, bool) and p.is_numeric:
+                value = min(max(value, p.low), p.high)
+                value = int(round(value)) if p.is_int else float(value)
+            if value is None or not p.contains(value):
+                log.info("generation 0 is random: the config has no usable value for %s (%r)", p.name, value)
+                return None
+            values[p.name] = value
+        log.info("generation 0 starts from the config: %s", " ".join(to_overrides(values)))
+        return values
 
     # -- launch and tell
 

@@ -48,6 +48,11 @@ class GASweeperConf:
     # exception, or a return value that is not a number) exceeds this
     max_failure_rate: float = 0.5
 
+    # make the first individual of generation 0 the application's own config (its values for
+    # the searched keys, clipped into the space), so that with elitism the sweep's best is never
+    # worse than the defaults; the other individuals are drawn at random
+    start_from_config: bool = True
+
     # continue from <sweep dir>/ga_history.json when it exists with the same search space
     resume: bool = True
 

@@ -23,6 +23,7 @@ class GASweeper(Sweeper):
         resume: bool,
         best_artifact: Optional[str],
         params: Optional[DictConfig] = None,
+        start_from_config: bool = True,
     ) -> None:
         from ._impl import GAOptions, GASweeperImpl
 
@@ -36,6 +37,7 @@ class GASweeper(Sweeper):
             elitism=elitism,
             seed=seed,
             max_failure_rate=max_failure_rate,
+            start_from_config=start_from_config,
             resume=resume,
             best_artifact=best_artifact,
         )
