@@ -1,5 +1,4 @@
 """Every config composes with Hydra's compose API, and every group instantiates."""
-from pathlib import Path
 
 import pytest
 from hydra import compose, initialize_config_dir

@@ -4,7 +4,6 @@ import subprocess
 import sys
 
 import numpy as np
-import pytest
 
 from gyronet.data import AXES, load_recording, load_truth
 from gyronet.dataset import block_rmse

@@ -8,10 +8,12 @@
    feature, retrain the network, refine again with the retrained network, and **confirm**: the
    retrained network's own held-out residual must drop by at least ``confirm_gain``. The first
    that confirms is kept and the loop goes back to 3; if none does, it stops.
-   The network's held-out residual is cross-validated on the screen's folds: one network per
-   set of interleaved ``span_s`` spans, each scored on the set it did not see, pooled. One
+   The network's held-out residual is cross-validated over the same interleaving of ``span_s``
+   spans as the screen's folds (cut from the samples' times, so within a block of the screen's
+   own): one network per set of spans, each scored on the set it did not see, pooled. One
    held-out set alone would miss effects that live in one part of the record, like a warm-up
-   in the first half hour.
+   in the first half hour. Each network early-stops on the spans it is scored on, as
+   ``train.py`` does, which flatters before and after alike.
 5. Save the final network as a bundle whose ``meta.json`` lists the extra feature specs, so the
    deployed compensator computes them through the same causal code, offline and live.
 
@@ -24,8 +26,9 @@ better on held-out data, while one given a missing effect does much better.
 The numbers in ``diagnosis.json`` are the networks' 60 s residual on held-out data: pooled over
 the cross-validation folds, or on the separate ``val_path`` recording. ``baseline``, then each
 effect's before and after, then ``final``. The screen's own cross-validated numbers are in each
-effect's ``evidence``. The bundles are the networks trained on the default split, as
-``train.py`` trains them.
+effect's ``evidence``. The bundles are the networks trained on the default fold (one set of
+spans held out for early stopping). ``diagnose()`` also writes ``diagnosis_details.json`` (every
+round's candidates, every stage's metrics) and the report's PNG figures.
 """
 from __future__ import annotations
 
@@ -110,6 +113,8 @@ class DiagnoseOptions:
     def __post_init__(self) -> None:
         if isinstance(self.candidates, Mapping):
             self.candidates = CandidateGrid(**self.candidates)
+        if self.n_folds < 2:
+            raise GyronetError(f"diagnose.n_folds must be at least 2, got {self.n_folds}")
 
 
 @dataclass
@@ -136,9 +141,9 @@ class _Trainer:
     """Builds the data for a list of inputs and trains a fresh network on it."""
 
     def __init__(self, data_options: Mapping[str, Any], make_model: Callable[[int], torch.nn.Module],
-                 optim: Callable | None, train_cfg: Mapping[str, Any], seed: int):
+                 optim: Callable | None, train_cfg: Mapping[str, Any], seed: int, block_s: float = 60.0):
         self.data_options, self.make_model = dict(data_options), make_model
-        self.optim, self.train_cfg, self.seed = optim, dict(train_cfg), seed
+        self.optim, self.train_cfg, self.seed, self.block_s = optim, dict(train_cfg), seed, block_s
 
     def __call__(self, specs: Sequence[Mapping[str, Any]] | None = None, val_fold: int | None = None) -> Stage:
         options = dict(self.data_options)
@@ -159,12 +164,13 @@ class _Trainer:
         temperatures the network was trained on count: held-out blocks at the record's coldest
         or hottest would otherwise score every network by the same extrapolation error."""
         data = stage.data
-        folds = [None] if data.val_path else range(fold_count(data.val_fraction))
-        default = fold_count(data.val_fraction) // 2 if data.val_fold is None else data.val_fold
+        k = fold_count(data.val_fraction)
+        default = k // 2 if data.val_fold is None else data.val_fold % k
+        folds = [None] if data.val_path else range(k)
         squares, weights = np.zeros(len(AXES)), 0
         for fold in folds:
             trained = stage if fold in (None, default) else self(data.features, val_fold=fold)
-            rmse, n_inside = _held_out_inside(trained)
+            rmse, n_inside = _held_out_inside(trained, self.block_s)
             squares, weights = squares + n_inside * rmse**2, weights + n_inside
         stage.held_out = dict(zip(AXES, np.sqrt(squares / max(weights, 1)).tolist()))
         log.info("trained on %s: held-out 60 s RMSE %s deg/s", ", ".join(data.feature_names),
@@ -172,23 +178,23 @@ class _Trainer:
         return stage
 
 
-def _held_out_inside(stage: Stage) -> tuple[np.ndarray, int]:
-    """60 s residual per axis on the stage's validation samples inside its trained temperatures, and their count."""
+def _held_out_inside(stage: Stage, block_s: float) -> tuple[np.ndarray, int]:
+    """Block residual per axis on the stage's validation samples inside its trained temperatures, and their count."""
     time_s, x, y = stage.data.val_full
     inside = np.ones(len(time_s), bool)
     if "temp_c" in stage.data.feature_names:
-        # whole 60 s blocks by their mean temperature: single samples left between noisy
+        # whole blocks by their mean temperature: single samples left between noisy
         # readings at the edge would each count as a block of raw noise
         column = stage.data.feature_names.index("temp_c")
         trained_c = stage.data.train.x[:, column]
-        block = time_blocks(time_s, 60.0)
+        block = time_blocks(time_s, block_s)
         mean_c = np.bincount(block, weights=x[:, column]) / np.maximum(np.bincount(block), 1)
         inside = ((mean_c >= trained_c.min()) & (mean_c <= trained_c.max()))[block]
     if inside.sum() < 2:
         raise GyronetError(f"{stage.data.path}: no held-out samples inside the trained temperature range")
     with torch.no_grad():
         residual = y[inside] - stage.model(torch.as_tensor(x[inside], dtype=torch.float64)).numpy()
-    return block_rmse(time_s[inside], residual, 60.0), int(inside.sum())
+    return block_rmse(time_s[inside], residual, block_s), int(inside.sum())
 
 
 def _attempt(choice: Choice, stage: Stage, train: _Trainer, rows: ScreenRows, basis: tuple, ridge: float,
@@ -249,14 +255,15 @@ def diagnose(data_options: Mapping[str, Any], make_model: Callable[[int], torch.
     # the networks are validated on the screen's folds (not data.n_blocks): interleaved spans of
     # span_s, one in n_folds held out, so every fold's training sees every dwell of the history
     data_options = {**data_options, "n_blocks": n_spans, "val_fraction": 1.0 / options.n_folds}
-    train = _Trainer(data_options, make_model, optim, dict(train_cfg or {}), seed)
+    train = _Trainer(data_options, make_model, optim, dict(train_cfg or {}), seed, options.block_s)
     stage = train.cross_validate(train())
     stages = [stage]
     save_bundle(stage.model, _meta(stage.model, stage.data), out_dir / "baseline" / "compensator")
 
     if data_options.get("val_path"):
         recordings.append(load_recording(data_options["val_path"]))
-        columns = [c for c in source_columns(recordings[0]) if c in set(source_columns(recordings[1]))]
+        in_both = set(source_columns(recordings[1]))
+        columns = [c for c in source_columns(recordings[0]) if c in in_both]
     longest_s = options.candidates.max_tau_fraction * span_s
     rows = ScreenRows.build(recordings, stage.data.fs_hz, options.block_s, n_spans, options.n_folds,
                             data_options.get("static_rate_dps"))
@@ -278,7 +285,8 @@ def diagnose(data_options: Mapping[str, Any], make_model: Callable[[int], torch.
                         pool, options.n_shifts, options.seed + len(rounds), options.ridge, basis[1])
         passing = result.passing(options.alpha, options.min_gain)
         round_ = {"n_candidates": len(pool), "n_shifts": len(result.null_max), "ridge": result.ridge,
-                  "null_max_quantile": float(np.quantile(result.null_max, 1 - options.alpha)),
+                  "null_max_quantile": float(np.quantile(result.null_max, 1 - options.alpha)) if len(result.null_max)
+                  else None,
                   "rmse_before_dps": dict(zip(AXES, result.rmse_before.tolist())),
                   "candidates": result.table()[:15], "tried": []}
         rounds.append(round_)

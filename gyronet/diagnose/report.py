@@ -185,8 +185,7 @@ def write_report(out_dir: Path, diagnosis: Mapping[str, Any], details: Mapping[s
                  stages: Sequence[Any], plots: bool = True) -> Path:
     """Write ``out_dir/report.md`` (and its PNG figures when ``plots``)."""
     options = details["options"]
-    options = options if isinstance(options, Mapping) else vars(options)
-    record = int(rows.recording.max())
+    record = len(rows.recordings) - 1  # the separate validation recording, when there is one
     training = rows.recordings[0]
     lines = [f"# Diagnosis of {training.path}", ""]
     span_h = (training.time_s[-1] - training.time_s[0]) / 3600.0
@@ -226,7 +225,7 @@ def write_report(out_dir: Path, diagnosis: Mapping[str, Any], details: Mapping[s
               f"held-out sum of squares of the 60 s residual ({options['n_folds']}-fold cross-validation over "
               f"interleaved {options['span_s']:g} s spans, or the separate recording), summed over the axes. "
               f"A candidate passes when no more than a fraction alpha = {options['alpha']:g} of "
-              f"{options['n_shifts']} circular time shifts of all candidates gives any candidate a score as "
+              f"{n_shifts} circular time shifts of all candidates gives any candidate a score as "
               f"high (a family-wise test over every candidate), and its score is at least "
               f"{options['min_gain']:g}. Lagged candidates are scored as if their filter had started on the mean "
               f"of the first block, not on one noisy sample. A candidate that passes is then added and the network retrained; it is "
@@ -257,7 +256,7 @@ def write_report(out_dir: Path, diagnosis: Mapping[str, Any], details: Mapping[s
         lines.append(f"- {details['n_blocks_outside']} blocks lie outside the temperature range the networks were "
                      "trained on (the held-out time blocks reach beyond it): the screen leaves them out, since "
                      "there the network is clamped and any candidate that extrapolates would win for the wrong "
-                     "reason; the networks' held-out numbers above include them.")
+                     "reason, and so do the networks' held-out numbers above.")
     lines.append("")
     if plots:
         figures = _figures(out_dir, rows, stages, record)

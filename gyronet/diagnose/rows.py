@@ -2,7 +2,9 @@
 
 Everything is computed causally at the full rate by ``gyronet.features`` (the code the deployed
 compensator runs) and only then averaged, so a block mean of a refitted output layer is exactly
-the block mean of what the deployed model would output.
+the block mean of what the deployed model would output. One exception: lagged candidates are
+scored as if their filter had started on the mean of the first block (``clean_start``), not on
+the deployed filter's first noisy sample (see ``candidates.filter_tau``).
 """
 from __future__ import annotations
 

@@ -9,9 +9,10 @@ cross-validation over interleaved time spans (span ``i`` of ``n_spans`` belongs 
 ``i % n_folds``, so every fold covers the whole thermal history, the start included), or, with a
 separate validation recording, fitted on the training record and scored on the other. The gain of
 a candidate on an axis is ``1 - SSE_with / SSE_without`` of the held-out 60 s residual, and its
-score is the sum of its positive gains over the axes. Adding one column to a least-squares fit is
-the Frisch-Waugh-Lovell update, so a candidate costs a few dot products and the whole screen needs
-no network training. The penalty on the refit is a ridge on the standardised nonlinear regressors
+score is the sum of its positive gains over the axes. The candidate's coefficient is fitted to
+what the basis fit leaves (the Frisch-Waugh-Lovell update, exact without a penalty; with the ridge
+an approximation, used alike for the observed score and the shifted null), so a candidate costs a
+few dot products and the whole screen needs no network training. The penalty on the refit is a ridge on the standardised nonlinear regressors
 (the model's inputs themselves and the constant stay free, so a candidate that merely copies an
 input gains nothing), chosen per round as the largest that predicts held-out blocks within 5 % as
 well as the best: a long record gets almost none, a short one a lot.
@@ -145,7 +146,7 @@ def shift_fractions(recording: np.ndarray, n_shifts: int, rng: np.random.Generat
 def choose_ridge(basis: np.ndarray, target: np.ndarray, fold: np.ndarray, free: np.ndarray | None = None,
                  grid: Sequence[float] = tuple(10.0 ** np.arange(-6, 4)), tolerance: float = 0.05) -> float:
     """The largest ridge penalty whose held-out error with the basis alone is within ``tolerance``
-    of the best (the one-standard-error rule of thumb).
+    of the best (a tolerance in the spirit of the one-standard-error rule).
 
     A long record needs almost none; a short one (a few dozen blocks for as many regressors)
     needs a lot, or every refit, with or without a candidate, is noise. Of the penalties that
