@@ -64,7 +64,7 @@ def _load_by_key(key: tuple[str, int, int]) -> Recording:
     return load_recording(key[0])
 
 
-def _load_cached(path: str) -> Recording:
+def load_cached(path: str) -> Recording:
     """Load a recording once per process: sweep jobs in a reused joblib worker share it."""
     if not os.path.isfile(path):
         return load_recording(path)  # raises the one-line error
@@ -132,13 +132,13 @@ class DriftData:
             for spec in self.features:
                 if spec["kind"] == "rate":
                     spec["tau_s"] = float(self.rate_tau_s)
-        self.recording = _load_cached(self.path)
+        self.recording = load_cached(self.path)
         self.fs_hz = self.recording.fs_hz
         self.static_rate = static_rate_dps(self.recording, self.static_rate_dps)
         full_x, full_y = self._full_rate(self.path)
         time_s = self.recording.time_s
         if self.val_path:
-            val_rec = _load_cached(self.val_path)
+            val_rec = load_cached(self.val_path)
             val_x, val_y = self._full_rate(self.val_path)
             self.train = to_blocks(time_s, full_x, full_y, self.block_s)
             self.val = to_blocks(val_rec.time_s, val_x, val_y, self.block_s)
@@ -158,7 +158,7 @@ class DriftData:
 
     def _full_rate(self, path: str) -> tuple[np.ndarray, np.ndarray]:
         """Features and targets at the full rate, computed once per process for a given file."""
-        recording = _load_cached(path)
+        recording = load_cached(path)
         x = _features_by_key(_file_key(path), json.dumps(self.features, sort_keys=True), self.fs_hz)
         y = recording.gyro_dps - static_rate_dps(recording, self.static_rate_dps)
         return x, y

@@ -42,8 +42,8 @@ from typing import Any, Callable, Mapping, Sequence
 import numpy as np
 import torch
 
-from gyronet.data import AXES, fold_count, load_recording, time_blocks
-from gyronet.dataset import DriftData, block_rmse
+from gyronet.data import AXES, fold_count, time_blocks
+from gyronet.dataset import DriftData, block_rmse, load_cached
 from gyronet.errors import GyronetError
 from gyronet.diagnose.candidates import (CandidateGrid, candidate_specs, effect_kind, effect_params,
                                          effect_source, source_columns)
@@ -249,7 +249,8 @@ def diagnose(data_options: Mapping[str, Any], make_model: Callable[[int], torch.
     if 1 / (options.n_shifts + 1) > options.alpha:
         log.warning("n_shifts=%d cannot give a p-value below alpha=%g: nothing can pass",
                     options.n_shifts, options.alpha)
-    recordings, columns = [load_recording(data_options["path"])], None
+    # loaded once per process: the networks' DriftData reuse it
+    recordings, columns = [load_cached(data_options["path"])], None
     span_s = float(recordings[0].time_s[-1] - recordings[0].time_s[0])
     n_spans = max(2 * options.n_folds, int(round(span_s / options.span_s)))
     # the networks are validated on the screen's folds (not data.n_blocks): interleaved spans of
@@ -261,7 +262,7 @@ def diagnose(data_options: Mapping[str, Any], make_model: Callable[[int], torch.
     save_bundle(stage.model, _meta(stage.model, stage.data), out_dir / "baseline" / "compensator")
 
     if data_options.get("val_path"):
-        recordings.append(load_recording(data_options["val_path"]))
+        recordings.append(load_cached(data_options["val_path"]))
         in_both = set(source_columns(recordings[1]))
         columns = [c for c in source_columns(recordings[0]) if c in in_both]
     longest_s = options.candidates.max_tau_fraction * span_s
