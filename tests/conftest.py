@@ -1,13 +1,23 @@
 """Shared fixtures: seeded simulated recordings with known drift and noise, and a trained bundle."""
 from pathlib import Path
 
+import os
+
 import pytest
+from hypothesis import HealthCheck, settings
 
 from gyronet.sim import simulate, write_simulation
 
 ROOT = Path(__file__).resolve().parents[1]
 SHARED = ROOT.parent / "shared"
 FAST_FS_HZ = 2.0  # the drift is slow; 2 Hz keeps tests quick while the noise stays white
+
+# property-based tests: a small example budget in the default run, a larger one under -m slow
+# (HYPOTHESIS_PROFILE=slow); no deadline, since CI machines vary in speed
+_HYPOTHESIS_COMMON = dict(deadline=None, suppress_health_check=[HealthCheck.too_slow], derandomize=True)
+settings.register_profile("default", max_examples=40, **_HYPOTHESIS_COMMON)
+settings.register_profile("slow", max_examples=400, **_HYPOTHESIS_COMMON)
+settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "default"))
 
 
 @pytest.fixture(scope="session")
