@@ -107,7 +107,8 @@ def test_run_stream_in_process_equals_offline(bundle, short_recording, tmp_path)
     thread.start()
     summary = run_stream(bundle, str(link), tmp_path / "live.csv", allan_every_s=60, tb_dir=tmp_path / "tb",
                          summary_path=tmp_path / "summary.json",
-                         reconnect={"backoff_s": 0.05, "max_backoff_s": 0.2, "give_up_s": 0.5})
+                         reconnect={"backoff_s": 0.05, "max_backoff_s": 0.2, "give_up_s": 0.5,
+                                                    "wait_at_start": True})
     thread.join(10)
     expected_faults = dict(plan.log["expected_faults"])
     expected_faults["port_lost"] += 1
@@ -138,7 +139,7 @@ def test_live_stream_equals_offline_and_counts_faults(bundle, short_recording, t
                      "faults.drop_port_at_s=[60,150]", "faults.gap_s_at=[[100,10]]", "faults.seed=4",
                      "port_down_s=0.3", tmp_path=tmp_path, name="emulator")
     stream = start(processes, "stream.py", f"model={bundle}", f"port={link}", f"protocol={protocol}",
-                   f"output={tmp_path / 'live.csv'}", f"summary={summary}", "reconnect.give_up_s=1",
+                   f"output={tmp_path / 'live.csv'}", f"summary={summary}", "reconnect.give_up_s=1", "reconnect.wait_at_start=true",
                    "reconnect.backoff_s=0.05", "allan_every_s=60", f"tb_dir={tmp_path / 'tb'}",
                    tmp_path=tmp_path, name="stream")
     assert stream.wait(90) == 0, (tmp_path / "stream.log").read_text()[-3000:]
@@ -164,7 +165,8 @@ def test_sigint_stops_cleanly_with_summary(bundle, short_recording, tmp_path, pr
     emulator = start(processes, "emulate_sensor.py", f"input={short_recording}", "speed=10", f"link={link}",
                      f"log_file={emulator_log}", "faults.garbage_rate=0.05", tmp_path=tmp_path, name="emulator")
     stream = start(processes, "stream.py", f"model={bundle}", f"port={link}", f"output={output}",
-                   f"summary={summary}", "allan_every_s=0", tmp_path=tmp_path, name="stream")
+                   f"summary={summary}", "allan_every_s=0", "reconnect.wait_at_start=true", tmp_path=tmp_path,
+                   name="stream")
     deadline = time.monotonic() + 60
     while time.monotonic() < deadline and (not output.exists() or len(output.read_text().splitlines()) < 32):
         assert stream.poll() is None, (tmp_path / "stream.log").read_text()[-3000:]
@@ -198,9 +200,178 @@ def test_run_stream_stops_on_max_samples_and_ctrl_c(bundle, tmp_path, monkeypatc
 
     monkeypatch.setattr(live, "read_samples", scripted)
     summary = live.run_stream(bundle, "/dev/null", tmp_path / "live.csv", allan_every_s=0,
-                              max_samples=5 if how == "max_samples" else None)
+                              max_samples=5 if how == "max_samples" else None, reconnect={"wait_at_start": True})
     assert summary["stopped"] == how
     assert summary["faults"] == {"garbage": 1}
     rows = read_output(tmp_path / "live.csv")
     assert len(rows) == summary["n_samples"] == (5 if how == "max_samples" else 20)
     assert list(rows.columns) == ["time_s", *GYRO_COLUMNS, "temp_c", "out_of_range"]
+
+
+# --- issue 10: restarted clocks, re-sent headers, signals, missing ports, a full disk ---------
+
+def feeding(chunks):
+    """A ``read_samples`` stand-in that feeds scripted bytes through the real parser."""
+
+    def scripted(port, parser, *, should_stop, **kwargs):
+        for chunk in chunks:
+            if should_stop():
+                return
+            yield from parser.feed(chunk)
+        yield from parser.flush()
+
+    return scripted
+
+
+def csv_stream(rows: dict[str, np.ndarray], names: list[str]) -> list[bytes]:
+    from gyronet.stream import encode_csv_line
+
+    return [encode_csv_line({c: float(rows[c][i]) for c in names}, names) for i in range(len(rows["time_s"]))]
+
+
+def offline(bundle, columns: dict[str, np.ndarray]):
+    """``compensate_recording`` on these samples, from a fresh state."""
+    from gyronet.data import Recording
+    from gyronet.offline import compensate_recording
+
+    return compensate_recording(Compensator.load(bundle), Recording(columns, {}, "good samples"))
+
+
+def test_replugged_sensor_with_its_clock_restarted_loses_no_sample(bundle, paper_csv, tmp_path, monkeypatch):
+    import gyronet.stream.live as live
+    from gyronet.stream import encode_csv_header
+
+    recording = load_recording(paper_csv).slice(slice(0, 1200))
+    names = list(recording.columns)
+    first = {c: v[:800] for c, v in recording.columns.items()}
+    second = {c: v[800:].copy() for c, v in recording.columns.items()}
+    second["time_s"] = second["time_s"] - second["time_s"][0] + 0.25  # its clock starts again near 0
+    lines = csv_stream(first, names) + csv_stream(second, names)
+    monkeypatch.setattr(live, "read_samples", feeding([encode_csv_header(names), *lines]))
+    summary = live.run_stream(bundle, "sensor", tmp_path / "live.csv", protocol="csv", allan_every_s=0,
+                              reconnect={"wait_at_start": True})
+    assert summary["n_samples"] == 1200 and summary["faults"] == {} and summary["clock_restarts"] == 1
+    output = read_output(tmp_path / "live.csv")
+    # each segment as offline from a fresh state: the compensator restarted with the sensor
+    for rows, part in ((slice(0, 800), first), (slice(800, 1200), second)):
+        assert_matches_offline(output.iloc[rows].reset_index(drop=True), part["time_s"], part["temp_c"],
+                               offline(bundle, part))
+
+
+def test_resent_header_without_a_needed_column_does_not_stop_the_stream(bundle, paper_csv, tmp_path, monkeypatch):
+    import gyronet.stream.live as live
+    from gyronet.stream import encode_csv_header
+
+    recording = load_recording(paper_csv).slice(slice(0, 200))
+    names = list(recording.columns)
+    lines = csv_stream(recording.columns, names)
+    cut = [n for n in names if n != "gyro_z_dps"]
+    chunks = [encode_csv_header(names), *lines[:100], encode_csv_header(cut), b"#\n", *lines[100:]]
+    monkeypatch.setattr(live, "read_samples", feeding(chunks))
+    summary = live.run_stream(bundle, "sensor", tmp_path / "live.csv", protocol="csv", allan_every_s=0,
+                              reconnect={"wait_at_start": True})
+    assert summary["n_samples"] == 200 and summary["faults"] == {"bad_header": 1}
+    assert_matches_offline(read_output(tmp_path / "live.csv"), recording.time_s, recording.temp_c,
+                           offline(bundle, recording.columns))
+
+
+@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM])
+def test_signals_stop_the_run_even_when_the_parent_ignored_them(bundle, tmp_path, monkeypatch, signum):
+    import os
+
+    import gyronet.stream.live as live
+    from gyronet.stream import Sample
+
+    def scripted(port, parser, *, should_stop, **kwargs):
+        for i in range(2000):
+            if should_stop():
+                return
+            if i == 20:
+                os.kill(os.getpid(), signum)  # handled in this (main) thread at the next bytecode
+            yield Sample(0.5 * i, {"temp_c": 25.0, "gyro_x_dps": 0.1, "gyro_y_dps": 0.2, "gyro_z_dps": 0.3})
+
+    monkeypatch.setattr(live, "read_samples", scripted)
+    previous = signal.signal(signum, signal.SIG_IGN)  # what a shell's background job inherits
+    try:
+        with live.stop_on_signals() as stop:
+            summary = live.run_stream(bundle, "sensor", tmp_path / "live.csv", allan_every_s=0,
+                                      summary_path=tmp_path / "summary.json", reconnect={"wait_at_start": True},
+                                      stop=stop)
+        assert signal.getsignal(signum) == signal.SIG_IGN  # put back as it was
+    finally:
+        signal.signal(signum, previous)
+    assert summary["stopped"] == "interrupted" and 20 <= summary["n_samples"] < 30
+    assert json.loads((tmp_path / "summary.json").read_text())["stopped"] == "interrupted"
+    assert len(read_output(tmp_path / "live.csv")) == summary["n_samples"]
+
+
+def test_a_port_missing_at_start_is_an_error_unless_waited_for(bundle, tmp_path):
+    from gyronet.stream import PortError
+    from gyronet.stream.live import run_stream
+
+    missing = tmp_path / "no-such-sensor"
+    started = time.monotonic()
+    with pytest.raises(PortError, match="no-such-sensor.*reconnect.wait_at_start=true"):
+        run_stream(bundle, str(missing), tmp_path / "live.csv")
+    assert time.monotonic() - started < 30 and not (tmp_path / "live.csv").exists()
+    summary = run_stream(bundle, str(missing), tmp_path / "live.csv", allan_every_s=0,
+                         reconnect={"wait_at_start": True, "backoff_s": 0.05, "give_up_s": 0.2})
+    assert summary["stopped"] == "port_gone" and summary["n_samples"] == 0
+
+
+class FullDisk:
+    """``os.write`` on one file with this many bytes of room left: a short write, then ENOSPC."""
+
+    def __init__(self, path: Path, room_bytes: int):
+        import os
+
+        self.path, self.room, self.real_write = str(path), room_bytes, os.write
+
+    def __call__(self, fd: int, data) -> int:
+        import errno
+        import os
+
+        if os.readlink(f"/proc/self/fd/{fd}") != self.path:
+            return self.real_write(fd, data)
+        if self.room <= 0:
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+        n = self.real_write(fd, bytes(data[:self.room]))
+        self.room -= n
+        return n
+
+
+@pytest.mark.parametrize("summary_writable", [True, False])
+def test_a_full_disk_stops_with_one_line_whole_lines_and_the_summary(bundle, tmp_path, monkeypatch,
+                                                                    summary_writable):
+    import os
+
+    import gyronet.stream.live as live
+    import gyronet.stream.output as output_module
+    from gyronet.stream import Sample
+    from gyronet.stream.output import OutputError
+
+    def scripted(port, parser, *, should_stop, **kwargs):
+        for i in range(500):
+            yield Sample(0.5 * i, {"temp_c": 25.0 + 0.01 * i, "gyro_x_dps": 0.1, "gyro_y_dps": 0.2, "gyro_z_dps": 0.3})
+
+    path = tmp_path / "live.csv"
+    monkeypatch.setattr(live, "read_samples", scripted)
+    monkeypatch.setattr(output_module.os, "write", FullDisk(path, 5000))
+    (tmp_path / "not-a-folder").write_text("")
+    summary_path = tmp_path / ("summary.json" if summary_writable else "not-a-folder/summary.json")
+    with pytest.raises(OutputError) as caught:
+        live.run_stream(bundle, "sensor", path, allan_every_s=0, summary_path=summary_path,
+                        reconnect={"wait_at_start": True})
+    message = str(caught.value)
+    assert "\n" not in message and "No space left on device" in message and str(path) in message
+    monkeypatch.undo()
+    text = path.read_text()
+    assert text.endswith("\n") and os.path.getsize(path) <= 5000
+    rows = read_output(path)
+    assert rows.notna().all().all() and 10 < len(rows) < 500
+    if summary_writable:
+        summary = json.loads(summary_path.read_text())
+        assert summary["stopped"] == "output_failed" and summary["n_samples"] == len(rows)
+        assert f"summary in {summary_path}" in message
+    else:
+        assert "cannot write the summary" in message and not summary_path.exists()
