@@ -2,11 +2,11 @@
 
 Lines end in ``\\n`` (a ``\\r`` before it is ignored); ``#`` lines are metadata and skipped. A
 sender that reconnects may send its header again: the same header is skipped. A different one
-(unique names, ``time_s`` and every ``required`` column among them) replaces the current header
-once a sample line fits it; when the next line fits the current header instead, it was a stray
-line (``bad_header``) and the current header stays. A header that lacks a required column is a
-``bad_header`` fault at once. So one corrupt line that reads like a header cannot turn every
-later sample into a fault.
+(unique names, ``time_s`` and every ``required`` column among them) replaces the current header,
+and the one before is kept: a later line that fits only the one before proves the new one a stray
+line (``bad_header``) and brings the one before back. A header that lacks a required column is a
+``bad_header`` fault at once. So one corrupt line that reads like a header (even one followed by
+a damaged line that fits it) cannot turn every later sample into a fault.
 
 Numbers are read as the offline loader (pandas) reads them: ASCII decimal with an optional sign,
 point and exponent. Python's ``float`` also takes ``1_000``, ``١`` and friends; those are
@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import logging
 import re
+from dataclasses import dataclass
 from typing import Iterable, Mapping, Sequence
 
 from gyronet.stream.events import Fault, Sample, SampleCheck
@@ -69,11 +70,16 @@ class CsvLineParser:
                  check: SampleCheck | None = None):
         self.max_line_bytes = max_line_bytes
         self.required = list(dict.fromkeys(["time_s", *required]))
-        self.header: list[str] | None = None
+        self._current: _Header | None = None
         self.check = check or SampleCheck()
-        self._candidate: tuple[list[str], bytes] | None = None  # a new header no line has fitted yet
+        self._previous: _Header | None = None  # the header before the current one: the fallback
         self._buffer = bytearray()
         self._discarding = False
+
+    @property
+    def header(self) -> list[str] | None:
+        """The columns of the current header (None before one arrived)."""
+        return None if self._current is None else self._current.cells
 
     @property
     def columns(self) -> list[str] | None:
@@ -142,39 +148,36 @@ class CsvLineParser:
         missing = [c for c in self.required if c not in cells]
         if missing:
             out.append(Fault("bad_header", line, f"lacks {', '.join(missing)}"))
-            return
-        if cells == self.header:  # the sender re-sent its header: any stray candidate is dropped
-            self._drop_candidate(out)
-            return
-        if self.header is None:
+        elif self._current is None or cells != self._current.cells:
             log.info("CSV header: %s", ",".join(cells))
-            self.header = cells
-            return
-        self._drop_candidate(out)
-        self._candidate = (cells, line)
+            self._previous, self._current = self._current, _Header(cells, line)
 
     def _header_for(self, n_cells: int, out: list) -> list[str]:
-        """The header a line of ``n_cells`` is read with; settles a pending candidate header.
+        """The header a line of ``n_cells`` is read with.
 
-        A line that fits the candidate adopts it (the newest wins when both fit); one that fits
-        only the current header proves the candidate a stray line; one that fits neither is
-        judged against the current header and settles nothing.
+        The current one when the line fits it; else the previous one when the line fits that:
+        the header line in between was a stray, and the previous header is back. A line that fits
+        neither is judged against the current header. A header that turns out a stray (left by
+        such a return, or never fitted by a line while the next one was) is one ``bad_header``.
         """
-        if self._candidate is None:
-            return self.header
-        candidate = self._candidate[0]
-        if n_cells == len(candidate):
-            log.info("CSV header: %s", ",".join(candidate))
-            self.header, self._candidate = candidate, None
-            return candidate
-        if n_cells == len(self.header):
-            self._drop_candidate(out)
-        return self.header
+        current, previous = self._current, self._previous
+        if n_cells == len(current.cells):
+            if previous is not None and not previous.fitted:
+                self._stray(previous, out, "no line fitted it")
+        elif previous is not None and n_cells == len(previous.cells):
+            self._stray(current, out, "the next line fits the previous header; that one is back")
+            self._current, self._previous = current, previous = previous, current
+            log.info("CSV header: back to %s", ",".join(current.cells))
+        else:
+            return current.cells
+        current.fitted = True
+        return current.cells
 
-    def _drop_candidate(self, out: list) -> None:
-        if self._candidate is not None:
-            out.append(Fault("bad_header", self._candidate[1], "no sample line fits it; the header stays"))
-            self._candidate = None
+    @staticmethod
+    def _stray(header: "_Header", out: list, why: str) -> None:
+        if not header.counted:
+            out.append(Fault("bad_header", header.raw, why))
+            header.counted = True
 
     def _sample(self, header: list[str], cells: list[str], values: list[float] | None, line: bytes,
                 ) -> Sample | Fault:
@@ -192,6 +195,16 @@ class CsvLineParser:
         row = dict(zip(header, values))
         time_s = row.pop("time_s")
         return self.check.check(time_s, row, line)
+
+
+@dataclass
+class _Header:
+    """A header line the parser has taken, and what the lines after it said about it."""
+
+    cells: list[str]
+    raw: bytes
+    fitted: bool = False  # a line of its length came after it
+    counted: bool = False  # already counted as a bad_header
 
 
 def _is_header(cells: list[str]) -> bool:
