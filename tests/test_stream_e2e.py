@@ -17,7 +17,7 @@ import pandas as pd
 import pytest
 
 from gyronet.compensator import Compensator
-from gyronet.data import GYRO_COLUMNS, load_recording, write_recording
+from gyronet.data import GYRO_COLUMNS, block_means, load_recording, load_truth, write_recording
 from gyronet.stream import LpBusLayout
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -375,3 +375,138 @@ def test_a_full_disk_stops_with_one_line_whole_lines_and_the_summary(bundle, tmp
         assert f"summary in {summary_path}" in message
     else:
         assert "cannot write the summary" in message and not summary_path.exists()
+
+
+# --- issue 10 goals: corrupt lines of every kind, and the README's lossy emulator example -----
+
+def corrupt_lines(lines: list[bytes], names: list[str], n_corrupt: int, seed: int) -> tuple[list[bytes], dict]:
+    """``lines`` with ``n_corrupt`` damaged lines of every kind inserted; and the faults they must give.
+
+    Each inserted line is extra: every good line stays, unchanged, on a line of its own.
+    """
+    header = ",".join(names).encode()
+    needed_but_short = b"time_s,temp_c,gyro_x_dps,gyro_y_dps,gyro_z_dps"
+    kinds = {  # kind: (the line, given the good line after it and the one before; the fault it gives)
+        "garbage": (lambda nxt, prev: bytes(range(0x80, 0x90)), "garbage"),
+        "cut_header": (lambda nxt, prev: b"time_s,temp_c", "bad_header"),
+        "header_without_gyro_z": (lambda nxt, prev: header.replace(b",gyro_z_dps", b""), "bad_header"),
+        "stray_header_with_needed_columns": (lambda nxt, prev: needed_but_short, "bad_header"),
+        "truncated_copy": (lambda nxt, prev: b",".join(nxt.split(b",")[:4]), "truncated"),
+        "underscore_number": (lambda nxt, prev: b"1_000," + b",".join(nxt.split(b",")[1:]), "non_numeric"),
+        "hex_number": (lambda nxt, prev: b",".join(nxt.split(b",")[:3] + [b"0x10"] + nxt.split(b",")[4:]),
+                       "non_numeric"),
+        "extra_cell": (lambda nxt, prev: nxt + b",9.5", "bad_field_count"),
+        "nan": (lambda nxt, prev: b",".join(nxt.split(b",")[:2] + [b"nan"] + nxt.split(b",")[3:]), "nan"),
+        "infinity": (lambda nxt, prev: b",".join(nxt.split(b",")[:2] + [b"-Infinity"] + nxt.split(b",")[3:]),
+                     "nan"),
+        "stale_copy": (lambda nxt, prev: prev, "time_not_increasing"),
+        "too_long": (lambda nxt, prev: b"7" * 5000, "garbage"),
+    }
+    rng = np.random.default_rng(seed)
+    where = np.sort(rng.choice(np.arange(1, len(lines)), n_corrupt, replace=False))
+    order = [list(kinds)[i % len(kinds)] for i in range(n_corrupt)]
+    out, expected, start = [], {}, 0
+    for position, kind in zip(where, order):
+        out += lines[start:position]
+        make, reason = kinds[kind]
+        out.append(make(lines[position].rstrip(b"\n"), lines[position - 1].rstrip(b"\n")) + b"\n")
+        expected[reason] = expected.get(reason, 0) + 1
+        start = position
+    out += lines[start:]
+    # a re-sent header and a comment are not faults
+    out.insert(len(out) // 2, header + b"\n")
+    out.insert(len(out) // 3, b"# sensor re-sent its metadata\n")
+    return out, expected
+
+
+def play_lines(link: Path, preamble: bytes, lines: list[bytes]):
+    """A thread that plays these lines into a pty at ``link`` as fast as the reader takes them."""
+    import threading
+
+    from gyronet.stream.emulator import Event, StreamPlan
+    from gyronet.stream.pty_sensor import PtySensor, play
+
+    plan = StreamPlan([Event(0.0, b"".join(lines[i:i + 64])) for i in range(0, len(lines), 64)], preamble)
+    sensor = PtySensor(link)
+
+    def emulate():
+        try:
+            play(plan, sensor, speed=0, reader_timeout_s=20)
+        finally:
+            sensor.close()
+            sensor.remove_link()
+
+    thread = threading.Thread(target=emulate, daemon=True)
+    thread.start()
+    return thread
+
+
+@pytest.mark.parametrize("n_samples", [3000, pytest.param(20000, marks=pytest.mark.slow)])
+def test_corrupt_lines_of_every_kind_lose_no_sample_and_live_equals_offline(bundle, paper_csv, tmp_path, n_samples):
+    from gyronet.stream import encode_csv_header
+    from gyronet.stream.live import run_stream
+
+    recording = load_recording(paper_csv).slice(slice(0, n_samples))
+    names = list(recording.columns)
+    stream, expected = corrupt_lines(csv_stream(recording.columns, names), names, 60, seed=3)
+    assert sum(expected.values()) == 60
+    thread = play_lines(tmp_path / "sensor", encode_csv_header(names), stream)
+    summary = run_stream(bundle, str(tmp_path / "sensor"), tmp_path / "live.csv", protocol="csv",
+                         allan_every_s=600, summary_path=tmp_path / "summary.json",
+                         reconnect={"wait_at_start": True, "backoff_s": 0.05, "give_up_s": 0.5})
+    thread.join(10)
+    assert summary["n_samples"] == n_samples
+    assert summary["faults"] == {**expected, "port_lost": 1}  # the emulator closing at the end
+    assert_matches_offline(read_output(tmp_path / "live.csv"), recording.time_s, recording.temp_c,
+                           offline(bundle, recording.columns))
+
+
+@pytest.mark.slow
+def test_readme_emulator_example_with_lost_frames_equals_offline_and_stays_bounded(bundle, paper_csv, tmp_path):
+    """README: emulate_sensor.py protocol=lpbus faults.garbage_rate=0.01 faults.corrupt_rate=0.01
+    'faults.drop_port_at_s=[600]', then stream.py. Frames lost to the bad checksums are gaps in the
+    record: the live output must equal offline on the good samples, finite and bounded, and (the
+    issue's goal) its residual against the simulator's truth, in 60 s blocks, within 1.1x of the
+    intact record's. Today the lost frames make dT/dt diverge (the feature extractor, offline and
+    live alike: 10x the intact residual here, 2e6 deg/s at 375 s on the README's record); this
+    test waits for that fix."""
+    import threading
+
+    from gyronet.stream import FaultPlan, plan_stream
+    from gyronet.stream.live import run_stream
+    from gyronet.stream.pty_sensor import PtySensor, play
+
+    recording = load_recording(paper_csv).slice(slice(0, 20000))
+    plan = plan_stream(recording.columns, "lpbus", FaultPlan(garbage_rate=0.01, corrupt_rate=0.01,
+                                                             drop_port_at_s=(600.0,), seed=0))
+    sensor = PtySensor(tmp_path / "sensor")
+
+    def emulate():
+        try:
+            play(plan, sensor, speed=0, reader_timeout_s=20, port_down_s=0.2)
+        finally:
+            sensor.close()
+            sensor.remove_link()
+
+    thread = threading.Thread(target=emulate, daemon=True)
+    thread.start()
+    summary = run_stream(bundle, str(tmp_path / "sensor"), tmp_path / "live.csv", allan_every_s=60,
+                         tb_dir=tmp_path / "tb",
+                         reconnect={"wait_at_start": True, "backoff_s": 0.05, "max_backoff_s": 0.2, "give_up_s": 0.5})
+    thread.join(10)
+    good = plan.log["good_indices"]
+    assert plan.log["injected"]["corrupt"] > 100 and summary["n_samples"] == len(good)
+    output = read_output(tmp_path / "live.csv")
+    time_s, temp_c, out = expected_output(bundle, paper_csv, plan.log, "lpbus", n=len(good))
+    assert_matches_offline(output, time_s, temp_c, out)
+    live = output[list(GYRO_COLUMNS)].to_numpy()
+    raw_dps = recording.gyro_dps[good]
+    assert np.isfinite(live).all()
+    # bounded: within a few times the drift the intact record needs of the raw rate
+    intact = offline(bundle, recording.columns)
+    assert np.abs(live - raw_dps).max() <= 3.0 * np.abs(intact.drift_dps).max() + 0.1
+    truth = load_truth(paper_csv).slice(slice(0, 20000))
+    true_dps = np.column_stack([truth.columns[f"true_rate_{axis}_dps"] for axis in "xyz"])[good]
+    block_rms = {name: np.sqrt((block_means(rate - true_dps, time_s, 60.0) ** 2).mean(axis=0))
+                 for name, rate in (("live", live), ("intact", intact.rate_dps[good]))}
+    assert (block_rms["live"] <= 1.1 * block_rms["intact"]).all(), block_rms
