@@ -43,10 +43,11 @@ def processes():
             process.wait(10)
 
 
-def start(processes, script: str, *overrides: str, tmp_path: Path, name: str) -> subprocess.Popen:
+def start(processes, script: str, *overrides: str, tmp_path: Path, name: str, preexec_fn=None) -> subprocess.Popen:
     log = open(tmp_path / f"{name}.log", "w")
     process = subprocess.Popen([sys.executable, f"scripts/{script}", *overrides,
-                                f"hydra.run.dir={tmp_path / name}"], cwd=ROOT, stdout=log, stderr=subprocess.STDOUT)
+                                f"hydra.run.dir={tmp_path / name}"], cwd=ROOT, stdout=log, stderr=subprocess.STDOUT,
+                               preexec_fn=preexec_fn)
     processes.append(process)
     return process
 
@@ -510,3 +511,75 @@ def test_readme_emulator_example_with_lost_frames_equals_offline_and_stays_bound
     block_rms = {name: np.sqrt((block_means(rate - true_dps, time_s, 60.0) ** 2).mean(axis=0))
                  for name, rate in (("live", live), ("intact", intact.rate_dps[good]))}
     assert (block_rms["live"] <= 1.1 * block_rms["intact"]).all(), block_rms
+
+
+# --- issue 10 through the script: a background start, a missing port, a really full disk -------
+
+def ignore_sigint() -> None:
+    """What a shell does to a job it starts with '&': SIGINT ignored, inherited across exec."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+@pytest.mark.slow
+def test_stream_py_started_with_sigint_ignored_still_stops_on_sigint(bundle, short_recording, tmp_path, processes):
+    link, summary, output = tmp_path / "sensor", tmp_path / "summary.json", tmp_path / "live.csv"
+    emulator = start(processes, "emulate_sensor.py", f"input={short_recording}", "speed=10", f"link={link}",
+                     tmp_path=tmp_path, name="emulator")
+    stream = start(processes, "stream.py", f"model={bundle}", f"port={link}", f"output={output}",
+                   f"summary={summary}", "allan_every_s=0", "reconnect.wait_at_start=true", tmp_path=tmp_path,
+                   name="stream", preexec_fn=ignore_sigint)
+    deadline = time.monotonic() + 60
+    while time.monotonic() < deadline and (not output.exists() or len(output.read_text().splitlines()) < 12):
+        assert stream.poll() is None, (tmp_path / "stream.log").read_text()[-3000:]
+        time.sleep(0.1)
+    stream.send_signal(signal.SIGINT)
+    assert stream.wait(30) == 0, (tmp_path / "stream.log").read_text()[-3000:]
+    emulator.send_signal(signal.SIGTERM)
+    emulator.wait(30)
+    result = json.loads(summary.read_text())
+    assert result["stopped"] == "interrupted" and len(read_output(output)) == result["n_samples"] >= 10
+
+
+@pytest.mark.slow
+def test_stream_py_port_missing_at_start_is_one_line_and_exit_2(bundle, tmp_path):
+    result = subprocess.run([sys.executable, "scripts/stream.py", f"model={bundle}", f"port={tmp_path / 'ttyNone'}",
+                             f"output={tmp_path / 'live.csv'}", f"hydra.run.dir={tmp_path / 'run'}"], cwd=ROOT,
+                            capture_output=True, text=True, timeout=120)
+    assert result.returncode == 2
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("error: port ") and "No such file or directory" in lines[0]
+    assert not (tmp_path / "live.csv").exists()
+
+
+@pytest.fixture
+def full_disk(tmp_path):
+    """A 256 KiB tmpfs (needs root: skipped elsewhere)."""
+    mount_point = tmp_path / "small"
+    mount_point.mkdir()
+    mounted = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=256k", "tmpfs", str(mount_point)],
+                             capture_output=True, text=True)
+    if mounted.returncode != 0:
+        pytest.skip(f"cannot mount a small tmpfs here: {mounted.stderr.strip()[:80]}")
+    yield mount_point
+    subprocess.run(["umount", str(mount_point)], check=False)
+
+
+@pytest.mark.slow
+def test_stream_py_on_a_full_disk_says_so_in_one_line(bundle, paper_csv, tmp_path, full_disk):
+    from gyronet.stream import encode_csv_header
+
+    recording = load_recording(paper_csv).slice(slice(0, 8000))
+    names = list(recording.columns)
+    thread = play_lines(tmp_path / "sensor", encode_csv_header(names), csv_stream(recording.columns, names))
+    output, summary = full_disk / "live.csv", tmp_path / "summary.json"
+    result = subprocess.run([sys.executable, "scripts/stream.py", f"model={bundle}", f"port={tmp_path / 'sensor'}",
+                             "protocol=csv", f"output={output}", f"summary={summary}", "allan_every_s=0",
+                             "reconnect.wait_at_start=true", f"hydra.run.dir={tmp_path / 'run'}"], cwd=ROOT,
+                            capture_output=True, text=True, timeout=300)
+    thread.join(10)
+    assert result.returncode == 2, result.stderr[-2000:]
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and "No space left on device" in lines[0] and f"summary in {summary}" in lines[0]
+    assert output.read_bytes().endswith(b"\n")
+    rows = read_output(output)
+    assert json.loads(summary.read_text())["n_samples"] == len(rows) > 100 and rows.notna().all().all()

@@ -6,6 +6,7 @@ symlink to one) and pyserial's URLs (``loop://``, ``socket://``) all work.
 from __future__ import annotations
 
 import logging
+import os
 import time
 from typing import Callable, Iterator, Protocol
 
@@ -49,7 +50,9 @@ def open_port_or_fail(url: str, baud: int = DEFAULT_BAUD, timeout_s: float = 0.0
     try:
         return open_port(url, baud, timeout_s)
     except PORT_ERRORS as err:
-        raise PortError(f"port {url}: cannot open it ({getattr(err, 'strerror', None) or err}){hint}") from None
+        code = getattr(err, "errno", None)  # pyserial keeps the OSError's errno
+        reason = os.strerror(code) if isinstance(code, int) else str(err)
+        raise PortError(f"port {url}: cannot open it ({reason}){hint}") from None
 
 
 def read_samples(port: serial.SerialBase | None, parser: Parser, *, url: str | None = None,
