@@ -194,6 +194,7 @@ def test_planned_faults_are_what_the_parser_counts(protocol):
     plan = plan_stream(columns, protocol, faults)
     log = plan.log
     assert log["injected"]["gap"] == 50 and all(min(v, 1) for k, v in log["injected"].items() if k != "port_drop")
+    assert log["clock_offsets_s"] == []
     stream = plan.preamble + b"".join(event.data for event in plan.events)
     out = feed_in_chunks(make_parser(protocol), stream, np.random.default_rng(6), max_chunk=200)
     counter = FaultCounter()
@@ -460,3 +461,14 @@ def test_restarted_clock_starts_a_new_segment_instead_of_dropping_samples():
     out = LpBusParser(check=check).feed(frames)
     assert reasons(out) == ["sample", "sample", "time_not_increasing", "sample", "sample"]
     assert [s.new_segment for s in out if isinstance(s, Sample)] == [False, False, True, False]
+
+
+def test_plan_replugs_with_a_restarted_clock():
+    columns = recording(300)
+    plan = plan_stream(columns, "lpbus", FaultPlan(restart_clock_at_s=(10.0,), seed=1))
+    assert plan.log["clock_offsets_s"] == [[100, -10.0]] and plan.log["expected_faults"] == {"port_lost": 1}
+    stream = b"".join(event.data for event in plan.events)
+    out = feed_in_chunks(LpBusParser(), stream)
+    times = [s.time_s for s in out]
+    assert len(out) == 300 and times[99:102] == [9.9, 0.0, 0.1]
+    assert [i for i, s in enumerate(out) if s.new_segment] == [100]

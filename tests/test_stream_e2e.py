@@ -583,3 +583,42 @@ def test_stream_py_on_a_full_disk_says_so_in_one_line(bundle, paper_csv, tmp_pat
     assert output.read_bytes().endswith(b"\n")
     rows = read_output(output)
     assert json.loads(summary.read_text())["n_samples"] == len(rows) > 100 and rows.notna().all().all()
+
+
+def test_emulated_replug_with_a_restarted_clock_through_a_pty(bundle, short_recording, tmp_path):
+    import threading
+
+    from gyronet.stream import FaultPlan, plan_stream
+    from gyronet.stream.live import run_stream
+    from gyronet.stream.pty_sensor import PtySensor, play
+
+    recording = load_recording(short_recording)
+    plan = plan_stream(recording.columns, "lpbus", FaultPlan(garbage_rate=0.03, corrupt_rate=0.03,
+                                                             restart_clock_at_s=(120.0,), seed=2))
+    sensor = PtySensor(tmp_path / "sensor")
+
+    def emulate():
+        try:
+            play(plan, sensor, speed=0, reader_timeout_s=20, port_down_s=0.2)
+        finally:
+            sensor.close()
+            sensor.remove_link()
+
+    thread = threading.Thread(target=emulate, daemon=True)
+    thread.start()
+    summary = run_stream(bundle, str(tmp_path / "sensor"), tmp_path / "live.csv", allan_every_s=0,
+                         reconnect={"wait_at_start": True, "backoff_s": 0.05, "give_up_s": 0.5})
+    thread.join(10)
+    ((first_index, offset_s),) = plan.log["clock_offsets_s"]
+    good = plan.log["good_indices"]
+    assert summary["clock_restarts"] == 1 and summary["n_samples"] == len(good)
+    assert summary["faults"] == {**plan.log["expected_faults"], "port_lost": plan.log["expected_faults"]["port_lost"] + 1}
+    output = read_output(tmp_path / "live.csv")
+    layout = LpBusLayout()
+    cut = sum(i < first_index for i in good)
+    for rows, indices, shift in ((slice(0, cut), good[:cut], 0.0), (slice(cut, None), good[cut:], offset_s)):
+        sent = [layout.quantize({**{c: float(recording.columns[c][i]) for c in recording.columns},
+                                 "time_s": float(recording.time_s[i]) + shift}) for i in indices]
+        columns = {c: np.array([row[c] for row in sent]) for c in sent[0]}
+        assert_matches_offline(output.iloc[rows].reset_index(drop=True), columns["time_s"], columns["temp_c"],
+                               offline(bundle, columns))
