@@ -79,7 +79,7 @@ def _cut(data: bytes, draw) -> bytes:
 
 @st.composite
 def csv_case(draw):
-    """The good rows and the stream's pieces: bytes, and the good row a piece carries unchanged (None: damaged or inserted)."""
+    """Good rows, and the stream as pieces: bytes, and the good row a piece carries unchanged (or None)."""
     rows = draw(good_rows(lpbus=False))
     header = encode_csv_header(NAMES)
     pieces: list[tuple[bytes, int | None]] = [(header, None)]
@@ -177,7 +177,7 @@ def check_outputs(out: list, rows: list[dict], spans: dict[int, tuple[int, int]]
 
 
 def same_csv(sample: Sample, row: dict) -> bool:
-    """Every value, by position (a damaged header may rename a column nothing needs) and, for the needed columns, by name."""
+    """Every value by position (a damaged header may rename a column nothing needs), the needed ones by name too."""
     return (sample.time_s == row["time_s"] and list(sample.values.values()) == [row[c] for c in NAMES[1:]]
             and all(sample.values.get(c) == row[c] for c in NEEDED[1:]))
 
@@ -217,3 +217,33 @@ def test_decoders_never_crash_on_arbitrary_bytes(junk, data):
         out = feed(make(), junk, splits)
         assert out == feed(make(), junk, [])
         assert all(isinstance(item, (Sample, Fault)) for item in out)
+
+
+def offline_cell(cell: str) -> float | None:
+    """The offline loader's reading of one cell (pandas, float64): its value, or None when it refuses it."""
+    import io
+
+    import pandas as pd
+
+    try:
+        column = pd.read_csv(io.StringIO(f"time_s,gyro_x_dps\n0.1,{cell}\n"), dtype=np.float64)["gyro_x_dps"]
+    except ValueError:
+        return None
+    return float(column.iloc[0]) if len(column) == 1 and np.isfinite(column.iloc[0]) else None
+
+
+NUMBERISH = st.text(alphabet="0123456789.eE+-_ \tnaifyxX", min_size=1, max_size=10)
+
+
+@given(cells=st.lists(NUMBERISH | st.floats(allow_nan=False).map(repr), min_size=1, max_size=12))
+def test_csv_cells_are_read_as_the_offline_loader_reads_them(cells):
+    cells = [c for c in cells if "\n" not in c and "," not in c and c.strip(" \t")]
+    parser = CsvLineParser()
+    parser.feed(b"time_s,gyro_x_dps\n")
+    for time_s, cell in enumerate(cells, start=1):
+        (item,) = parser.feed(f"{time_s},{cell}\n".encode())
+        expected = offline_cell(cell)
+        if expected is None:
+            assert isinstance(item, Fault) and item.reason in ("non_numeric", "nan"), (cell, item)
+        else:
+            assert isinstance(item, Sample) and item.values["gyro_x_dps"] == expected, (cell, item)

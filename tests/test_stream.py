@@ -11,7 +11,8 @@ import pytest
 import serial
 
 import gyronet.stream.reader as reader_module
-from gyronet.stream import (CsvLineParser, Fault, FaultCounter, FaultPlan, LpBusLayout, LpBusParser, Sample, SampleCheck,
+from gyronet.stream import (CsvLineParser, Fault, FaultCounter, FaultPlan, LpBusLayout, LpBusParser, Sample,
+                            SampleCheck,
                             encode_csv_header, encode_csv_line, encode_lpbus, lpbus_frame, lrc, make_parser,
                             plan_stream, read_samples)
 
