@@ -4,18 +4,18 @@ from omegaconf import DictConfig, OmegaConf
 
 from gyronet.errors import exit_on_error
 from gyronet.stream import LpBusLayout
-from gyronet.stream.live import interrupt_on_sigterm, run_stream
+from gyronet.stream.live import run_stream, stop_on_signals
 
 
 @hydra.main(version_base="1.3", config_path="../conf/deploy", config_name="stream")
 @exit_on_error
 def main(cfg: DictConfig) -> None:
     options = OmegaConf.to_container(cfg, resolve=True)
-    interrupt_on_sigterm()
-    run_stream(options["model"], options["port"], options["output"], options["protocol"], int(options["baud"]),
-               LpBusLayout(**options["lpbus"]), options["max_samples"], options["duration_s"],
-               float(options["allan_every_s"]), options["tb_dir"], options["summary"],
-               float(options["read_timeout_s"]), options["reconnect"])
+    with stop_on_signals() as stop:  # SIGINT and SIGTERM alike, whatever the parent left them as
+        run_stream(options["model"], options["port"], options["output"], options["protocol"], int(options["baud"]),
+                   LpBusLayout(**options["lpbus"]), options["max_samples"], options["duration_s"],
+                   float(options["allan_every_s"]), options["tb_dir"], options["summary"],
+                   float(options["read_timeout_s"]), options["reconnect"], options["clock"], stop=stop)
 
 
 if __name__ == "__main__":

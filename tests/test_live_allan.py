@@ -36,3 +36,43 @@ def test_bins_stay_contiguous_when_a_bin_holds_one_or_few_samples(fs_hz):
     allan.finish()
     steps = np.diff(allan.time_s)
     assert np.allclose(steps, allan.bin_s) and len(allan.time_s) == pytest.approx(3600 / allan.bin_s, abs=1)
+
+
+def white_stream(fs_hz: float, duration_s: float, arw: float, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    rng = np.random.default_rng(seed)
+    n = int(duration_s * fs_hz)
+    return np.arange(n) / fs_hz, rng.normal(0.0, arw / 60 * np.sqrt(fs_hz), (n, 3))
+
+
+def test_frame_loss_is_bridged_not_cut_to_the_longest_stretch():
+    # 1 % of the frames lost at 10 Hz (one sample a bin): the report used 131 of 593 bins
+    fs_hz, arw = 10.0, 3.0
+    time_s, rate = white_stream(fs_hz, 3600.0, arw, seed=1)
+    kept = np.random.default_rng(2).random(len(time_s)) >= 0.01
+    allan = LiveAllan(None, every_s=1e9, fs_hz=fs_hz)
+    for t, r in zip(time_s[kept], rate[kept]):
+        allan.add(t, r)
+    allan.finish()
+    n_bins = 3600.0 / allan.bin_s
+    assert allan.bins["used"] == pytest.approx(n_bins, abs=2)
+    assert allan.bins["filled"] == pytest.approx((~kept).sum(), rel=0.1) and allan.bins["filled"] < 0.02 * n_bins
+    for axis in "xyz":
+        assert allan.last[axis]["arw_deg_rthr"] == pytest.approx(arw, rel=0.1)
+
+
+def test_long_gaps_and_restarted_clocks_stay_breaks():
+    fs_hz = 10.0
+    time_s, rate = white_stream(fs_hz, 600.0, 3.0, seed=3)
+    allan = LiveAllan(None, every_s=1e9, fs_hz=fs_hz, max_fill_s=2.0)
+    gone = (time_s >= 100.0) & (time_s < 130.0)  # the port down for 30 s: not bridged
+    for t, r in zip(time_s[~gone], rate[~gone]):
+        allan.add(t, r)
+    allan.new_segment(0.0)  # the sensor replugged, its clock at 0 again: the next 200 s continue after a break
+    for t, r in zip(time_s[:2000], rate[:2000]):
+        allan.add(t, r)
+    allan.finish()
+    steps = np.diff(allan.time_s)
+    assert steps.min() > 0  # the history's own time axis stays increasing across the restart
+    assert allan.bins["filled"] == 0 and allan.bins["used"] == pytest.approx(470 / allan.bin_s, abs=2)
+    bridged_time_s, bridged_rate, n_filled = allan.bridged()
+    assert np.allclose(np.diff(bridged_time_s), allan.bin_s) and n_filled == 0

@@ -12,6 +12,7 @@ import serial
 
 import gyronet.stream.reader as reader_module
 from gyronet.stream import (CsvLineParser, Fault, FaultCounter, FaultPlan, LpBusLayout, LpBusParser, Sample,
+                            SampleCheck,
                             encode_csv_header, encode_csv_line, encode_lpbus, lpbus_frame, lrc, make_parser,
                             plan_stream, read_samples)
 
@@ -194,6 +195,7 @@ def test_planned_faults_are_what_the_parser_counts(protocol):
     plan = plan_stream(columns, protocol, faults)
     log = plan.log
     assert log["injected"]["gap"] == 50 and all(min(v, 1) for k, v in log["injected"].items() if k != "port_drop")
+    assert log["clock_offsets_s"] == []
     stream = plan.preamble + b"".join(event.data for event in plan.events)
     out = feed_in_chunks(make_parser(protocol), stream, np.random.default_rng(6), max_chunk=200)
     counter = FaultCounter()
@@ -356,3 +358,118 @@ def test_configs_build_the_library_objects():
     assert LpBusLayout(**OmegaConf.to_container(emulate.lpbus)) == LpBusLayout(sensor_id=1)
     assert LpBusLayout(**OmegaConf.to_container(stream.lpbus)).fields == ("gyro", "temperature")
     assert stream.model == "m"
+
+
+# --- issue 10: corrupt header lines, numbers as offline, restarted clocks ---------------------
+
+NAMES = ["time_s", "temp_c", "gyro_x_dps", "gyro_y_dps", "gyro_z_dps", "acc_x_g", "acc_y_g", "acc_z_g"]
+NEEDED = ["time_s", "temp_c", "gyro_x_dps", "gyro_y_dps", "gyro_z_dps"]
+
+
+def csv_rows(n: int, start_s: float = 0.0) -> list[dict[str, float]]:
+    columns = recording(n)
+    return [{c: float(columns[c][i]) + (start_s if c == "time_s" else 0.0) for c in NAMES} for i in range(n)]
+
+
+@pytest.mark.parametrize("required", [(), NEEDED])
+def test_csv_header_like_corrupt_line_keeps_the_header(required):
+    # a corrupt line that reads 'time_s,temp_c' was taken as the new header: 18,921 of 20,000 lost
+    rows = csv_rows(300)
+    lines = [encode_csv_line(r, NAMES) for r in rows]
+    stray = [b"time_s,temp_c\n", b"time_s,temp_c,gyro_x_dps,gyro_y_dps\n",  # cut headers
+             b"time_s,temp_c,gyro_x_dps,gyro_y_dps,gyro_z_dps\n",  # carries the needed columns, fits no line
+             encode_csv_header(NAMES)]  # the same header re-sent: skipped, no fault
+    stream = encode_csv_header(NAMES) + b"".join(lines[:100]) + stray[0] + b"".join(lines[100:150]) + stray[1] \
+        + b"".join(lines[150:200]) + stray[2] + b"".join(lines[200:250]) + stray[3] + b"".join(lines[250:])
+    for rng in (None, np.random.default_rng(7)):
+        out = feed_in_chunks(CsvLineParser(required=required), stream, rng)
+        assert [s.row() for s in out if isinstance(s, Sample)] == rows
+        faults = [f for f in out if isinstance(f, Fault)]
+        assert [f.reason for f in faults] == ["bad_header"] * 3
+        if required:  # refused at once, naming what it lacks
+            assert "gyro_z_dps" in faults[0].detail and "gyro_z_dps" in faults[1].detail
+
+
+def test_csv_header_without_a_needed_column_is_refused_and_a_real_new_header_is_taken():
+    parser = CsvLineParser(required=NEEDED)
+    first = [{"time_s": 0.1 * i, "temp_c": 25.0, "gyro_x_dps": 1.0, "gyro_y_dps": 2.0, "gyro_z_dps": 3.0}
+             for i in range(1, 4)]
+    names = list(first[0])
+    renamed = ["time_s", "gyro_z_dps", "gyro_y_dps", "gyro_x_dps", "temp_c", "vdd_v"]
+    later = [{**r, "time_s": r["time_s"] + 1.0, "vdd_v": 3.3} for r in first]
+    stream = (b"time_s,temp_c,gyro_x_dps,gyro_y_dps\n" + encode_csv_header(names)
+              + b"".join(encode_csv_line(r, names) for r in first)
+              + b"time_s,temp_c,gyro_x_dps,gyro_y_dps\n0.35,25.0,1.0,2.0\n"  # re-sent without gyro_z_dps
+              + encode_csv_header(renamed) + b"".join(encode_csv_line(r, renamed) for r in later))
+    out = feed_in_chunks(parser, stream)
+    assert reasons(out) == ["bad_header", "sample", "sample", "sample", "bad_header", "truncated",
+                            "sample", "sample", "sample"]
+    assert [s.row() for s in out if isinstance(s, Sample)] == first + later
+    assert parser.header == renamed
+
+
+# strings Python's float() reads that the offline loader (pandas) refuses, or reads as not finite
+REFUSED = {"1_000": "non_numeric", "1_0.5": "non_numeric", "0x10": "non_numeric", "１２": "garbage",
+           "١": "garbage", "1e": "non_numeric", "--1": "non_numeric", "": "non_numeric", "1 2": "non_numeric",
+           "0b1": "non_numeric", "\x1c1": "non_numeric", "true": "non_numeric",
+           "nan": "nan", "NaN": "nan", "-nan": "nan", "nAn": "nan", "+nan": "nan", "inf": "nan", "-inf": "nan",
+           "infinity": "nan", "-Infinity": "nan", "INF": "nan", "1e400": "nan"}
+ACCEPTED = {" 1": 1.0, "1 ": 1.0, "\t1": 1.0, "1e5": 1e5, "1E-5": 1e-5, "+1.5": 1.5, ".5": 0.5, "5.": 5.0,
+            "-0": -0.0, "0001": 1.0, "1e+05": 1e5, "+.5e1": 5.0, "1e-400": 0.0, "\x0b1": 1.0}
+
+
+def read_cell_offline(cell: str) -> float | None:
+    """What the offline loader does with one cell: its value, or None when it refuses it."""
+    import io
+
+    import pandas as pd
+
+    try:
+        value = pd.read_csv(io.StringIO(f"time_s,gyro_x_dps\n0.1,{cell}\n"), dtype=np.float64)["gyro_x_dps"]
+    except ValueError:
+        return None
+    return float(value.iloc[0]) if len(value) == 1 and np.isfinite(value.iloc[0]) else None
+
+
+@pytest.mark.parametrize("cell", sorted(REFUSED) + sorted(ACCEPTED))
+def test_csv_numbers_read_as_offline(cell):
+    out = CsvLineParser().feed(f"time_s,gyro_x_dps\n0.1,{cell}\n".encode("utf-8"))
+    if cell in ACCEPTED:
+        assert reasons(out) == ["sample"] and out[0].values["gyro_x_dps"] == ACCEPTED[cell]
+        assert read_cell_offline(cell) == ACCEPTED[cell]
+    else:
+        assert reasons(out) == [REFUSED[cell]]
+        # the offline loader refuses it too (pandas takes 'true' as 1.0; the live path does not)
+        assert read_cell_offline(cell) is None or cell == "true"
+
+
+def test_restarted_clock_starts_a_new_segment_instead_of_dropping_samples():
+    first, second = csv_rows(30, start_s=100.0), csv_rows(40)  # replugged: its clock starts at 0 again
+    stale = {**first[-1], "time_s": first[-1]["time_s"] - 0.5}  # a stale sample: back by 0.5 s
+    jump = {**second[-1], "time_s": second[-1]["time_s"] + 7200.0}  # a clock jumping 2 h ahead
+    rows = first + [stale] + second + [jump]
+    stream = encode_csv_header(NAMES) + b"".join(encode_csv_line(r, NAMES) for r in rows)
+    parser = CsvLineParser()
+    out = feed_in_chunks(parser, stream)
+    assert reasons(out) == ["sample"] * 30 + ["time_not_increasing"] + ["sample"] * 41
+    samples = [s for s in out if isinstance(s, Sample)]
+    assert [s.row() for s in samples] == first + second + [jump]
+    assert [i for i, s in enumerate(samples) if s.new_segment] == [30, 70]
+    assert parser.check.n_restarts == 2
+    # the same check in the LP-BUS parser, with the thresholds set
+    check = SampleCheck(restart_back_s=5.0, restart_jump_s=None)
+    frames = b"".join(encode_lpbus({**ROW, "time_s": t}) for t in (10.0, 10.1, 6.0, 4.0, 9000.0))
+    out = LpBusParser(check=check).feed(frames)
+    assert reasons(out) == ["sample", "sample", "time_not_increasing", "sample", "sample"]
+    assert [s.new_segment for s in out if isinstance(s, Sample)] == [False, False, True, False]
+
+
+def test_plan_replugs_with_a_restarted_clock():
+    columns = recording(300)
+    plan = plan_stream(columns, "lpbus", FaultPlan(restart_clock_at_s=(10.0,), seed=1))
+    assert plan.log["clock_offsets_s"] == [[100, -10.0]] and plan.log["expected_faults"] == {"port_lost": 1}
+    stream = b"".join(event.data for event in plan.events)
+    out = feed_in_chunks(LpBusParser(), stream)
+    times = [s.time_s for s in out]
+    assert len(out) == 300 and times[99:102] == [9.9, 0.0, 0.1]
+    assert [i for i, s in enumerate(out) if s.new_segment] == [100]

@@ -4,28 +4,35 @@ The framing parsers are pure (bytes in, ``Sample`` or ``Fault`` out, any chunkin
 :mod:`gyronet.stream.reader` imports ``serial``. The live compensation loop that joins a stream to a
 compensator bundle is :mod:`gyronet.stream.live`.
 """
-from gyronet.stream.csvline import CsvLineParser, encode_csv_header, encode_csv_line
+from typing import Iterable
+
+from gyronet.stream.csvline import CsvLineParser, encode_csv_header, encode_csv_line, parse_number
 from gyronet.stream.emulator import FaultPlan, StreamPlan, plan_stream
 from gyronet.stream.events import FAULT_REASONS, Fault, FaultCounter, Sample, SampleCheck
 from gyronet.stream.lpbus import LpBusParser, encode_lpbus, lpbus_frame, lrc
 from gyronet.stream.lpbus_layout import DEFAULT_FIELDS, FIELDS, LpBusLayout
-from gyronet.stream.reader import DEFAULT_BAUD, open_port, read_samples
+from gyronet.stream.reader import DEFAULT_BAUD, PortError, open_port, read_samples
 
 __all__ = [
-    "CsvLineParser", "encode_csv_header", "encode_csv_line",
+    "CsvLineParser", "encode_csv_header", "encode_csv_line", "parse_number",
     "FaultPlan", "StreamPlan", "plan_stream",
     "FAULT_REASONS", "Fault", "FaultCounter", "Sample", "SampleCheck",
     "LpBusParser", "encode_lpbus", "lpbus_frame", "lrc",
     "DEFAULT_FIELDS", "FIELDS", "LpBusLayout",
-    "DEFAULT_BAUD", "open_port", "read_samples",
+    "DEFAULT_BAUD", "PortError", "open_port", "read_samples",
     "make_parser",
 ]
 
 
-def make_parser(protocol: str, layout: LpBusLayout | None = None) -> LpBusParser | CsvLineParser:
-    """The parser for ``protocol`` (``"lpbus"`` or ``"csv"``)."""
+def make_parser(protocol: str, layout: LpBusLayout | None = None, required: Iterable[str] = (),
+                check: SampleCheck | None = None) -> LpBusParser | CsvLineParser:
+    """The parser for ``protocol`` (``"lpbus"`` or ``"csv"``).
+
+    ``required``: the columns a CSV header must carry (the consumer's inputs); ``check``: the
+    time and value checks (default ``SampleCheck()``).
+    """
     if protocol == "lpbus":
-        return LpBusParser(layout)
+        return LpBusParser(layout, check=check)
     if protocol == "csv":
-        return CsvLineParser()
+        return CsvLineParser(required=required, check=check)
     raise ValueError(f"protocol must be 'lpbus' or 'csv', got {protocol!r}")

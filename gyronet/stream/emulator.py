@@ -18,6 +18,9 @@ so the log's ``expected_faults`` is what a reader must count:
 - ``drop_port_at_s``: the port disappears before the first sample at or after each time: one
   ``port_lost`` for the reader. No sample is lost: the player waits until the reader has read
   everything before it closes the port.
+- ``restart_clock_at_s``: a replug: the port drops there (one ``port_lost``) and the sensor's
+  clock starts again, so the first sample after it is sent at time 0 and the rest follow on. The
+  log's ``clock_offsets_s`` lists ``[first index, offset]`` pairs: sent time = recording time + offset.
 
 Times of faults are relative to the recording's first sample.
 """
@@ -56,6 +59,7 @@ class FaultPlan:
     out_of_range_temp_c: float = 150.0
     gap_s_at: tuple[tuple[float, float], ...] = ()
     drop_port_at_s: tuple[float, ...] = ()
+    restart_clock_at_s: tuple[float, ...] = ()
     seed: int = 0
 
     def __post_init__(self) -> None:
@@ -64,6 +68,7 @@ class FaultPlan:
             raise ValueError(f"fault rates must be in [0, 1] and corrupt + truncate + nan <= 1, got {rates}")
         object.__setattr__(self, "gap_s_at", tuple((float(a), float(b)) for a, b in self.gap_s_at))
         object.__setattr__(self, "drop_port_at_s", tuple(sorted(float(t) for t in self.drop_port_at_s)))
+        object.__setattr__(self, "restart_clock_at_s", tuple(sorted(float(t) for t in self.restart_clock_at_s)))
 
 
 @dataclass
@@ -164,6 +169,7 @@ def plan_stream(columns: Mapping[str, np.ndarray], protocol: str = "lpbus", faul
     events: list[Event] = []
     good, out_of_range = [], []
     drops = list(faults.drop_port_at_s)
+    restarts, clock_offsets, offset_s = list(faults.restart_clock_at_s), [], 0.0
     previous_cut = False
     for index in range(len(time_s)):
         t_rel = float(time_s[index] - time_s[0])
@@ -171,11 +177,19 @@ def plan_stream(columns: Mapping[str, np.ndarray], protocol: str = "lpbus", faul
             drops.pop(0)
             events.append(Event(float(time_s[index]), drop=True))
             injected["port_drop"] += 1
+        if restarts and t_rel >= restarts[0]:  # a replug: the port goes, the clock starts again
+            while restarts and t_rel >= restarts[0]:
+                restarts.pop(0)
+            events.append(Event(float(time_s[index]), drop=True))
+            injected["port_drop"] += 1
+            offset_s = -float(time_s[index])
+            clock_offsets.append([index, offset_s])
         u_garbage, u_damage = decide.random(2)
         if any(start <= t_rel < start + length for start, length in faults.gap_s_at):
             injected["gap"] += 1
             continue
         row = {c: float(columns[c][index]) for c in names}
+        row["time_s"] += offset_s
         is_oor = faults.out_of_range_every > 0 and (index + 1) % faults.out_of_range_every == 0
         if is_oor:
             row["temp_c"] = faults.out_of_range_temp_c
@@ -203,7 +217,7 @@ def plan_stream(columns: Mapping[str, np.ndarray], protocol: str = "lpbus", faul
     expected = {reason: injected[kind] for kind, reason in EXPECTED_REASON[protocol].items() if injected[kind]}
     log = {"protocol": protocol, "columns": names, "n_samples": int(len(time_s)), "seed": faults.seed,
            "injected": injected, "expected_faults": dict(sorted(expected.items())),
-           "good_indices": good, "out_of_range_indices": out_of_range}
+           "good_indices": good, "out_of_range_indices": out_of_range, "clock_offsets_s": clock_offsets}
     return StreamPlan(events, preamble, log)
 
 

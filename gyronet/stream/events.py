@@ -1,10 +1,12 @@
 """What a framing parser yields: a good ``Sample`` or a ``Fault``, and a ``FaultCounter``.
 
 Both framings (LP-BUS and CSV lines) share the checks that do not depend on the framing: every
-value finite, time strictly increasing (``SampleCheck``).
+value finite, time strictly increasing, a restarted sensor clock seen as a new segment
+(``SampleCheck``).
 """
 from __future__ import annotations
 
+import logging
 import math
 from collections import Counter
 from dataclasses import dataclass, field
@@ -21,11 +23,15 @@ FAULT_REASONS: dict[str, str] = {
     "bad_field_count": "CSV line with more cells than the header",
     "non_numeric": "CSV cell that is not a number",
     "no_header": "CSV line before any header line",
-    "time_not_increasing": "time_s not after the previous good sample's",
+    "bad_header": "CSV header line that lacks a column the consumer needs, or that no sample line fits"
+                  " (the previous header stays)",
+    "time_not_increasing": "time_s not after the previous good sample's (back by at most the restart threshold)",
     "port_lost": "the serial port failed or disappeared (the reader reopens it)",
 }
 
 EXCERPT_BYTES = 32
+
+log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
@@ -38,10 +44,14 @@ class Sample:
         Sample time, s.
     values
         Every other channel by its CONTRACT.md column name (``temp_c``, ``gyro_x_dps``, ...).
+    new_segment
+        The sensor clock restarted (or jumped) before this sample: it starts a new segment, and
+        a consumer restarts whatever state it keeps across samples.
     """
 
     time_s: float
     values: Mapping[str, float]
+    new_segment: bool = False
 
     def row(self) -> dict[str, float]:
         """``time_s`` and the values as one dict of columns."""
@@ -111,21 +121,44 @@ class FaultCounter:
 
 
 class SampleCheck:
-    """The framing-independent checks: finite values, strictly increasing time.
+    """The framing-independent checks: finite values, strictly increasing time, clock restarts.
 
     Keeps the time of the last good sample, across reconnections, so a replayed or stale sample
-    is refused.
+    (time back by at most ``restart_back_s``) is refused. A sensor replugged with its clock
+    restarted sends times far before the last one: rather than refusing every sample until the
+    new clock passes the old one, a step back of more than ``restart_back_s``, or forward of more
+    than ``restart_jump_s``, starts a new segment (``Sample.new_segment``; counted in
+    ``n_restarts``).
+
+    Parameters
+    ----------
+    restart_back_s
+        Largest step back in time that is a stale sample, not a restarted clock, s.
+    restart_jump_s
+        Largest step forward that is a gap in the same clock, s (None: any).
     """
 
-    def __init__(self) -> None:
+    def __init__(self, restart_back_s: float = 1.0, restart_jump_s: float | None = 3600.0) -> None:
+        self.restart_back_s = float(restart_back_s)
+        self.restart_jump_s = None if restart_jump_s is None else float(restart_jump_s)
         self.last_time_s: float | None = None
+        self.n_restarts = 0
 
     def check(self, time_s: float, values: Mapping[str, float], raw: bytes = b"") -> Sample | Fault:
         """A ``Sample`` when the values pass, else the ``Fault`` that says why."""
         for name, value in (("time_s", time_s), *values.items()):
             if not math.isfinite(value):
                 return Fault("nan", raw, f"{name}={value}")
-        if self.last_time_s is not None and not time_s > self.last_time_s:
-            return Fault("time_not_increasing", raw, f"time_s={time_s!r} after {self.last_time_s!r}")
+        last = self.last_time_s
+        new_segment = False
+        if last is not None and not time_s > last:
+            if last - time_s <= self.restart_back_s:
+                return Fault("time_not_increasing", raw, f"time_s={time_s!r} after {last!r}")
+            new_segment = True
+        elif last is not None and self.restart_jump_s is not None and time_s - last > self.restart_jump_s:
+            new_segment = True
+        if new_segment:
+            self.n_restarts += 1
+            log.warning("sensor clock restarted (time_s %r after %r): a new segment", time_s, last)
         self.last_time_s = time_s
-        return Sample(float(time_s), dict(values))
+        return Sample(float(time_s), dict(values), new_segment)

@@ -3,187 +3,45 @@
 Each good sample goes through ``Compensator.process`` as it arrives, the same causal code the
 offline path runs on a whole file, so the output equals ``compensate.py`` on the good samples.
 The output has the offline columns (``time_s``, compensated ``gyro_*_dps``, ``temp_c``,
-``out_of_range``) and is flushed after every sample. Faults are counted by reason; the Allan terms
-of the compensated rate (N and B per axis) go to TensorBoard every ``allan_every_s`` of data, and
-the Allan curves as a figure when the run stops.
+``out_of_range``) and each line is on disk when the next sample is read (:mod:`.output`). Faults
+are counted by reason; the Allan terms of the compensated rate (N and B per axis) go to
+TensorBoard every ``allan_every_s`` of data, and the Allan curves as a figure when the run stops
+(:mod:`.live_allan`).
+
+A sensor clock that restarts (a replug: time goes back, or jumps far ahead) starts a new segment:
+the compensator restarts from its power-on state, as the sensor did, and the output keeps the
+sensor's own times, so each segment equals ``compensate.py`` on that segment's samples.
 """
 from __future__ import annotations
 
-import json
+import contextlib
 import logging
-import math
+import signal
+import threading
 import time
 from pathlib import Path
-from typing import Any, Mapping, TextIO
+from typing import Callable, Iterator, Mapping
 
 import numpy as np
 
-from gyronet.compensator import Compensated, Compensator
-from gyronet.data import AXES
-from gyronet.errors import GyronetError
-from gyronet.offline import output_columns
-from gyronet.stream import FaultCounter, LpBusLayout, Sample, make_parser, read_samples
+from gyronet.compensator import Compensator
+from gyronet.stream import FaultCounter, LpBusLayout, Sample, SampleCheck, make_parser, read_samples
+from gyronet.stream.live_allan import LiveAllan
+from gyronet.stream.output import LiveWriter, OutputError, output_names, write_summary
+from gyronet.stream.reader import open_port_or_fail
 
 log = logging.getLogger(__name__)
 
-
-def output_names() -> list[str]:
-    """The columns of a compensated file, in the offline writer's order."""
-    empty = Compensated(np.empty((0, 3)), np.empty((0, 3)), np.empty(0, dtype=bool))
-    return list(output_columns(np.empty(0), np.empty(0), empty))
-
-
-class LiveWriter:
-    """The output CSV, one line per compensated sample, flushed each time."""
-
-    def __init__(self, path: str | Path, bundle_dir: str | Path):
-        self.path = Path(path)
-        self.path.parent.mkdir(parents=True, exist_ok=True)
-        self.names = output_names()
-        self._file: TextIO = open(self.path, "w", encoding="utf-8", newline="")
-        self._file.write(f"# compensated_by={Path(bundle_dir).resolve()}\n" + ",".join(self.names) + "\n")
-        self._file.flush()
-        self.n_rows = 0
-
-    def write(self, time_s: float, temp_c: float, out: Compensated) -> None:
-        """Write the compensated samples of ``out`` (here one) and flush."""
-        columns = output_columns(np.atleast_1d(time_s), np.atleast_1d(temp_c), out)
-        for row in range(len(columns["time_s"])):
-            self._file.write(",".join(repr(_plain(columns[n][row])) for n in self.names) + "\n")
-            self.n_rows += 1
-        self._file.flush()
-
-    def close(self) -> None:
-        self._file.close()
-
-
-def _plain(value: Any) -> float | int:
-    return int(value) if isinstance(value, (np.integer, np.bool_)) else float(value)
-
-
-class LiveAllan:
-    """Allan noise terms of the compensated rate, computed every ``every_s`` seconds of data.
-
-    Parameters
-    ----------
-    writer
-        A TensorBoard ``SummaryWriter`` (None: compute, log, keep the last report only).
-    every_s
-        Data seconds between reports.
-    fs_hz
-        Sampling rate of the stream, Hz.
-    """
-
-    def __init__(self, writer: Any, every_s: float, fs_hz: float, bin_s: float | None = None,
-                 max_history_s: float = 86400.0):
-        self.writer, self.every_s, self.fs_hz = writer, float(every_s), float(fs_hz)
-        # Samples are averaged into bins of at least 0.1 s, so a 1 kHz stream keeps 10 values a
-        # second, not 1000: memory stays flat-ish (~1 MB/h) and a report takes milliseconds. The
-        # Allan deviation at taus of whole bins is unchanged in expectation.
-        self.bin_s = max(1.0 / self.fs_hz, 0.1) if bin_s is None else float(bin_s)
-        self.max_bins = max(16, int(max_history_s / self.bin_s))
-        self._time_s = np.empty(1024)
-        self._rate_dps = np.empty((1024, 3))
-        self._n = 0
-        self._start_s: float | None = None
-        self._bin = -1
-        self._sum = np.zeros(3)
-        self._count = 0
-        self.next_s: float | None = None
-        self.last: dict[str, dict[str, float]] = {}
-
-    @property
-    def time_s(self) -> np.ndarray:
-        """Mid-times of the completed bins, s."""
-        return self._time_s[:self._n]
-
-    @property
-    def rate_dps(self) -> np.ndarray:
-        """Mean compensated rate of each completed bin, (n, 3), deg/s."""
-        return self._rate_dps[:self._n]
-
-    def add(self, time_s: float, rate_dps: np.ndarray) -> None:
-        """Add a sample; report when ``every_s`` of data has passed since the last report."""
-        if self._start_s is None:
-            self._start_s = float(time_s)
-            self.next_s = time_s + self.every_s
-        # bin edges half a sample before the nominal ones: a sample on a regular grid never falls
-        # on an edge, where float rounding would put two samples in one bin and none in the next
-        index = int((time_s - self._start_s + 0.5 / self.fs_hz) // self.bin_s)
-        if index != self._bin:
-            self._close_bin()
-            self._bin = index
-        self._sum += np.asarray(rate_dps, dtype=np.float64).reshape(3)
-        self._count += 1
-        if time_s >= self.next_s:
-            self.report(step=int(round(time_s - self._start_s)))
-            self.next_s = time_s + self.every_s
-
-    def _close_bin(self) -> None:
-        if self._count == 0:
-            return
-        if self._n == len(self._time_s):
-            if self._n >= self.max_bins:  # keep the newest half of the history
-                keep = self._n // 2
-                self._time_s[:keep] = self._time_s[self._n - keep:self._n]
-                self._rate_dps[:keep] = self._rate_dps[self._n - keep:self._n]
-                self._n = keep
-            else:
-                self._time_s = np.resize(self._time_s, 2 * self._n)
-                self._rate_dps = np.resize(self._rate_dps, (2 * self._n, 3))
-        self._time_s[self._n] = self._start_s + (self._bin + 0.5) * self.bin_s
-        self._rate_dps[self._n] = self._sum / self._count
-        self._n += 1
-        self._sum[:] = 0.0
-        self._count = 0
-
-    def report(self, step: int, figure: bool = False) -> None:
-        """Compute N and B per axis on everything so far and log them (and the curves, if asked)."""
-        from gyronet.allan import allan_report, plot_allan
-
-        try:
-            report = allan_report(self.time_s, self.rate_dps, 1.0 / self.bin_s)
-        except GyronetError as err:  # too short so far
-            log.debug("no Allan report yet: %s", err)
-            return
-        self.last = {axis: {"arw_deg_rthr": _finite_or_none(report[axis]["arw_deg_rthr"]),
-                            "bias_instability_deg_hr": _finite_or_none(report[axis]["bias_instability_deg_hr"])}
-                     for axis in AXES}
-        log.info("Allan at %d s of data: %s", step, ", ".join(
-            f"{axis}: N={_number(v['arw_deg_rthr'])} deg/rt-h B={_number(v['bias_instability_deg_hr'])} deg/h"
-            for axis, v in self.last.items()))
-        if self.writer is None:
-            return
-        for axis, values in self.last.items():
-            for name, tag in (("arw_deg_rthr", "arw"), ("bias_instability_deg_hr", "bias_instability")):
-                if values[name] is not None:
-                    self.writer.add_scalar(f"allan/{tag}_{axis}", values[name], step)
-        if figure:  # drawing takes a second or more: once, at the end, not between samples
-            from gyronet.tb import log_figure
-
-            log_figure(self.writer, "allan/curves", plot_allan(report, title=f"live, {step} s of data"), step)
-        self.writer.flush()
-
-    def finish(self) -> None:
-        """The last report, with the Allan curves as a figure."""
-        self._close_bin()
-        if self._n >= 3:
-            self.report(step=int(round(self.time_s[-1] - self._start_s)), figure=True)
-
-
-def _number(value: float | None) -> str:
-    return "n/a" if value is None else f"{value:.4g}"
-
-
-def _finite_or_none(value: float) -> float | None:
-    return float(value) if math.isfinite(value) else None
+__all__ = ["LiveAllan", "LiveWriter", "OutputError", "output_names", "run_stream", "stop_on_signals"]
 
 
 def run_stream(bundle_dir: str | Path, port: str, output: str | Path, protocol: str = "lpbus",
                baud: int = 921600, layout: LpBusLayout | None = None, max_samples: int | None = None,
                duration_s: float | None = None, allan_every_s: float = 60.0, tb_dir: str | Path | None = None,
                summary_path: str | Path | None = None, read_timeout_s: float = 0.05,
-               reconnect: Mapping[str, float | None] | None = None) -> dict:
+               reconnect: Mapping[str, float | bool | None] | None = None,
+               clock: Mapping[str, float | None] | None = None,
+               stop: Callable[[], bool] | None = None) -> dict:
     """``stream.py``: compensate a live stream until told to stop; return the summary.
 
     Parameters
@@ -198,7 +56,7 @@ def run_stream(bundle_dir: str | Path, port: str, output: str | Path, protocol: 
         Framing (``"lpbus"`` or ``"csv"``), speed, LP-BUS layout.
     max_samples, duration_s
         Stop after this many good samples, or this many wall-clock seconds (None: run until
-        Ctrl-C, or until the port stays gone for ``reconnect["give_up_s"]``).
+        stopped, or until the port stays gone for ``reconnect["give_up_s"]``).
     allan_every_s
         Data seconds between live Allan reports (0: none).
     tb_dir, summary_path
@@ -206,72 +64,136 @@ def run_stream(bundle_dir: str | Path, port: str, output: str | Path, protocol: 
     read_timeout_s
         Serial read timeout, s.
     reconnect
-        ``backoff_s``, ``max_backoff_s``, ``give_up_s`` for :func:`read_samples`.
+        ``backoff_s``, ``max_backoff_s``, ``give_up_s`` for :func:`read_samples`, and
+        ``wait_at_start``: when false (default) a port that cannot be opened at the start is a
+        ``PortError``; when true it is waited for like a lost one.
+    clock
+        ``restart_back_s``, ``restart_jump_s`` for :class:`SampleCheck`: what counts as a
+        restarted sensor clock.
+    stop
+        Polled between reads; True stops the run as Ctrl-C does (``stop_on_signals``).
+
+    Raises
+    ------
+    PortError, BundleError
+        Before anything is written: a port that cannot be opened, a bundle that does not fit.
+    OutputError
+        When the output cannot be written (a full disk): after the port is closed and the
+        summary written (or logged as impossible); the output ends with a complete line.
     """
+    options = dict(reconnect or {})
+    wait_at_start = bool(options.pop("wait_at_start", False))
     compensator = Compensator.load(bundle_dir)
     compensator.reset()
-    parser = make_parser(protocol, layout)
+    check = SampleCheck(**dict(clock or {}))
+    parser = make_parser(protocol, layout, required=compensator.input_columns, check=check)
     if protocol == "lpbus":
         compensator.check_columns(dict.fromkeys(parser.columns), source=f"LP-BUS fields {list(parser.layout.fields)}")
+    opened = None if wait_at_start else open_port_or_fail(
+        port, baud, read_timeout_s, hint="; pass reconnect.wait_at_start=true to wait for it")
+    try:
+        out = LiveWriter(output, bundle_dir)
+    except OutputError:
+        if opened is not None:
+            opened.close()
+        raise
     writer = _tb_writer(tb_dir) if tb_dir is not None and allan_every_s > 0 else None
     allan = LiveAllan(writer, allan_every_s, float(compensator.meta["fs_hz"])) if allan_every_s > 0 else None
-    out = LiveWriter(output, bundle_dir)
     counter = FaultCounter()
+    state = {"n_out_of_range": 0, "clock_restarts": 0}
     started = time.monotonic()
-    stopped = "port_gone"
+    stopped, failure = "port_gone", None
+    external_stop = stop or (lambda: False)
 
     def should_stop() -> bool:
-        return duration_s is not None and time.monotonic() - started >= duration_s
+        return external_stop() or (duration_s is not None and time.monotonic() - started >= duration_s)
 
     log.info("streaming %s (%s, %d baud) through %s into %s", port, protocol, baud, bundle_dir, output)
-    items = read_samples(None, parser, url=port, baud=baud, timeout_s=read_timeout_s, should_stop=should_stop,
-                         **dict(reconnect or {}))
+    items = read_samples(opened, parser, url=port, baud=baud, timeout_s=read_timeout_s, should_stop=should_stop,
+                         **options)
     try:
         for item in items:
             counter.add(item)
             if not isinstance(item, Sample):
                 log.log(logging.WARNING if counter.counts[item.reason] == 1 else logging.DEBUG, "fault: %s", item)
                 continue
-            _compensate(compensator, item, out, allan, port)
+            _compensate(compensator, item, out, allan, port, state)
             if max_samples is not None and out.n_rows >= max_samples:
                 stopped = "max_samples"
                 break
         else:
-            stopped = "duration" if should_stop() else "port_gone"
+            stopped = "interrupted" if external_stop() else "duration" if should_stop() else "port_gone"
     except KeyboardInterrupt:
         stopped = "interrupted"
+    except OutputError as err:
+        stopped, failure = "output_failed", err
     finally:
         items.close()  # closes the port
         out.close()
-    if allan is not None:
-        allan.finish()
-    if writer is not None:
-        writer.close()
-    summary = _summary(counter, compensator, out, allan, stopped, time.monotonic() - started)
-    log.info("stopped (%s): %s; %d out of the trained temperature range", stopped, counter.summary(),
-             summary["n_out_of_range"])
+    _finish_allan(allan, writer)
+    summary = _summary(counter, compensator, out, allan, stopped, time.monotonic() - started, state)
+    log.info("stopped (%s): %s; %d out of the trained temperature range; %d clock restart(s)", stopped,
+             counter.summary(), summary["n_out_of_range"], summary["clock_restarts"])
+    summary_note = ""
     if summary_path is not None:
-        Path(summary_path).parent.mkdir(parents=True, exist_ok=True)
-        Path(summary_path).write_text(json.dumps(summary, indent=2) + "\n")
+        try:
+            write_summary(summary_path, summary)
+            summary_note = f"; summary in {summary_path}"
+        except OutputError as err:
+            log.error("%s", err)
+            summary_note = f"; {err}"
+    if failure is not None:
+        raise OutputError(f"{failure}{summary_note}")
     return summary
 
 
 def _compensate(compensator: Compensator, sample: Sample, out: LiveWriter, allan: LiveAllan | None,
-                port: str) -> None:
+                port: str, state: dict) -> None:
     row = sample.row()
     if out.n_rows == 0:
         compensator.check_columns(row, source=f"{port}: the stream")
+    if sample.new_segment:
+        # the sensor restarted: so do the filters (from a clean state, never from the old one)
+        compensator.reset()
+        state["clock_restarts"] += 1
+        if allan is not None:
+            allan.new_segment(sample.time_s)
     result = compensator.process({name: np.array([row[name]]) for name in compensator.input_columns})
     out.write(sample.time_s, row["temp_c"], result)
     if result.out_of_range[0]:
+        state["n_out_of_range"] += 1
         log.debug("temp_c=%.3f at %.3f s outside the trained range", row["temp_c"], sample.time_s)
     if allan is not None:
         allan.add(sample.time_s, result.rate_dps[0])
 
 
+@contextlib.contextmanager
+def stop_on_signals(signals: tuple[int, ...] = (signal.SIGINT, signal.SIGTERM)) -> Iterator[Callable[[], bool]]:
+    """Within the block, SIGINT and SIGTERM ask the run to stop; yields the ``stop`` poll for ``run_stream``.
+
+    The handlers are installed explicitly, whatever the parent left: a shell starts a background
+    job with SIGINT ignored, and an inherited SIG_IGN would make Ctrl-C (or ``kill -INT``) do
+    nothing. A handler only sets a flag, so no write is cut in the middle. The previous handlers
+    are restored on exit. Only the main thread can install handlers; elsewhere this does nothing.
+    """
+    requested = threading.Event()
+    if threading.current_thread() is not threading.main_thread():
+        yield requested.is_set
+        return
+
+    def _request(signum, frame):
+        requested.set()
+
+    previous = {signum: signal.signal(signum, _request) for signum in signals}
+    try:
+        yield requested.is_set
+    finally:
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)
+
+
 def interrupt_on_sigterm() -> None:
-    """Make SIGTERM stop a run the way Ctrl-C does (summary written, files closed)."""
-    import signal
+    """Make SIGTERM stop a run the way Ctrl-C does (kept for old callers: prefer ``stop_on_signals``)."""
 
     def _raise(signum, frame):
         raise KeyboardInterrupt
@@ -285,9 +207,21 @@ def _tb_writer(tb_dir: str | Path):
     return make_writer(tb_dir)
 
 
+def _finish_allan(allan: LiveAllan | None, writer) -> None:
+    try:
+        if allan is not None:
+            allan.finish()
+        if writer is not None:
+            writer.close()
+    except OSError as err:  # TensorBoard on a full disk: the summary still comes
+        log.error("TensorBoard: cannot finish writing (%s)", err)
+
+
 def _summary(counter: FaultCounter, compensator: Compensator, out: LiveWriter, allan: LiveAllan | None,
-             stopped: str, elapsed_s: float) -> dict:
+             stopped: str, elapsed_s: float, state: dict) -> dict:
     return {"stopped": stopped, "n_samples": out.n_rows, "faults": counter.as_dict(),
-            "n_faults": counter.n_faults, "n_out_of_range": int(compensator.n_out_of_range),
+            "n_faults": counter.n_faults, "n_out_of_range": int(state["n_out_of_range"]),
+            "clock_restarts": int(state["clock_restarts"]),
             "temp_range_c": list(compensator.temp_range_c), "elapsed_s": round(elapsed_s, 3),
-            "output": str(out.path), "allan": allan.last if allan is not None else {}}
+            "output": str(out.path), "allan": allan.last if allan is not None else {},
+            "allan_bins": allan.bins if allan is not None else {}}

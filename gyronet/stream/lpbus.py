@@ -66,12 +66,20 @@ class LpBusParser:
         What the sensor-data frames hold.
     max_length
         Longest data block believed, bytes.
+    check
+        The time and value checks (default ``SampleCheck()``).
+
+    Notes
+    -----
+    The LRC is a 16-bit sum: damage that keeps the sum (two changes that cancel, a byte moved)
+    passes it, and such a frame is decoded as a good one. The value checks (finite, time) and
+    the fixed length still apply to it.
     """
 
-    def __init__(self, layout: LpBusLayout | None = None, max_length: int = 512):
+    def __init__(self, layout: LpBusLayout | None = None, max_length: int = 512, check: SampleCheck | None = None):
         self.layout = layout or LpBusLayout()
         self.max_length = max(max_length, self.layout.data_length)
-        self.check = SampleCheck()
+        self.check = check or SampleCheck()
         self._buffer = bytearray()
         self._garbage = bytearray()
 

@@ -6,17 +6,23 @@ symlink to one) and pyserial's URLs (``loop://``, ``socket://``) all work.
 from __future__ import annotations
 
 import logging
+import os
 import time
 from typing import Callable, Iterator, Protocol
 
 import serial
 
+from gyronet.errors import GyronetError
 from gyronet.stream.events import Fault, Sample
 
 log = logging.getLogger(__name__)
 
 PORT_ERRORS = (serial.SerialException, OSError)
 DEFAULT_BAUD = 921600  # LPMS USB sensors' factory setting (LP-Research's C client opens at 921600)
+
+
+class PortError(GyronetError):
+    """A serial port that cannot be opened when a run starts (a typo, a sensor not plugged in)."""
 
 
 class Parser(Protocol):
@@ -36,6 +42,17 @@ def open_port(url: str, baud: int = DEFAULT_BAUD, timeout_s: float = 0.05) -> se
         When it cannot be opened.
     """
     return serial.serial_for_url(url, baudrate=baud, timeout=timeout_s)
+
+
+def open_port_or_fail(url: str, baud: int = DEFAULT_BAUD, timeout_s: float = 0.05,
+                      hint: str = "") -> serial.SerialBase:
+    """``open_port``, with a failure as a ``PortError`` of one line (plus ``hint``)."""
+    try:
+        return open_port(url, baud, timeout_s)
+    except PORT_ERRORS as err:
+        code = getattr(err, "errno", None)  # pyserial keeps the OSError's errno
+        reason = os.strerror(code) if isinstance(code, int) else str(err)
+        raise PortError(f"port {url}: cannot open it ({reason}){hint}") from None
 
 
 def read_samples(port: serial.SerialBase | None, parser: Parser, *, url: str | None = None,

@@ -1,0 +1,113 @@
+"""The live output CSV and the run summary, written so that a kill or a full disk never leaves half a line.
+
+Each compensated sample is one ``os.write`` of whole lines on an unbuffered file: a kill (even
+SIGKILL) leaves complete lines only, and a write that fails part-way (ENOSPC, EIO) is cut back
+to the last complete line before the error is raised. The summary JSON is written to a temporary
+file and renamed, so it is whole or absent.
+"""
+from __future__ import annotations
+
+import json
+import logging
+import os
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from gyronet.compensator import Compensated
+from gyronet.errors import GyronetError
+from gyronet.offline import output_columns
+
+log = logging.getLogger(__name__)
+
+
+class OutputError(GyronetError):
+    """The output (or the summary) cannot be written: a full disk, a folder that is not writable."""
+
+
+def output_names() -> list[str]:
+    """The columns of a compensated file, in the offline writer's order."""
+    empty = Compensated(np.empty((0, 3)), np.empty((0, 3)), np.empty(0, dtype=bool))
+    return list(output_columns(np.empty(0), np.empty(0), empty))
+
+
+class LiveWriter:
+    """The output CSV, one line per compensated sample, on disk as soon as ``write`` returns.
+
+    Raises
+    ------
+    OutputError
+        When the file cannot be created or written (the file then ends with a complete line).
+    """
+
+    def __init__(self, path: str | Path, bundle_dir: str | Path):
+        self.path = Path(path)
+        self.names = output_names()
+        self.n_rows = 0
+        self._size = 0
+        try:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            self._fd: int | None = os.open(self.path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o666)
+        except OSError as err:
+            raise OutputError(f"{self.path}: cannot create the output ({err.strerror or err})") from None
+        header = f"# compensated_by={Path(bundle_dir).resolve()}\n" + ",".join(self.names) + "\n"
+        self._write(header.encode("utf-8"), 0)
+
+    def write(self, time_s: float, temp_c: float, out: Compensated) -> None:
+        """Write the compensated samples of ``out`` (here one)."""
+        columns = output_columns(np.atleast_1d(time_s), np.atleast_1d(temp_c), out)
+        n = len(columns["time_s"])
+        text = "".join(",".join(repr(_plain(columns[name][row])) for name in self.names) + "\n"
+                       for row in range(n))
+        self._write(text.encode("ascii"), n)
+
+    def _write(self, data: bytes, n_rows: int) -> None:
+        if self._fd is None:
+            raise OutputError(f"{self.path}: the output is closed")
+        done = 0
+        try:
+            while done < len(data):
+                done += os.write(self._fd, data[done:])
+        except OSError as err:
+            if done:  # whole lines only: cut the part-written one off again
+                try:
+                    os.ftruncate(self._fd, self._size)
+                except OSError:  # pragma: no cover - truncating frees space; nothing else to try
+                    log.error("%s: could not cut a part-written line off", self.path)
+            self.close()
+            raise OutputError(f"{self.path}: cannot write ({err.strerror or err}) after {self.n_rows} rows; "
+                              f"the file ends with the last complete row") from None
+        self._size += len(data)
+        self.n_rows += n_rows
+
+    def close(self) -> None:
+        if self._fd is not None:
+            os.close(self._fd)
+            self._fd = None
+
+
+def _plain(value: Any) -> float | int:
+    return int(value) if isinstance(value, (np.integer, np.bool_)) else float(value)
+
+
+def write_summary(path: str | Path, summary: dict) -> None:
+    """Write the summary JSON whole (temporary file, then rename).
+
+    Raises
+    ------
+    OutputError
+        When it cannot be written; no partial file is left.
+    """
+    path = Path(path)
+    temporary = path.with_name(path.name + ".tmp")
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        temporary.write_text(json.dumps(summary, indent=2) + "\n")
+        os.replace(temporary, path)
+    except OSError as err:
+        try:
+            temporary.unlink(missing_ok=True)
+        except OSError:  # its folder is not there either
+            pass
+        raise OutputError(f"{path}: cannot write the summary ({err.strerror or err})") from None
