@@ -143,7 +143,8 @@ def _meta_edits() -> dict:
 HARMLESS_DROPS = {"gyronet_version", "output", "data_sha256", "model", "sha256", "kalman"}
 # changes nothing the model computes: loads, same numbers (a bundle without sha256 warns that it cannot be verified)
 HARMLESS_EDITS = {"extra field", "version string edited", "output text edited", "fs_hz as int",
-                  "gyronet_version = 'abc'", "output = 'abc'", "data_sha256 = 'abc'", "model = {}", "model = {'kind': 'temp'}", "sha256 = {}",
+                  "gyronet_version = 'abc'", "output = 'abc'", "data_sha256 = 'abc'", "model = {}",
+                  "model = {'kind': 'temp'}", "sha256 = {}",
                   *(f"drop {f}" for f in HARMLESS_DROPS)}
 MUST_REFUSE = {"format 99", "gyronet_version 99", "fs_hz doubled", "features cut to temperature", "rate tau changed",
                "axes reordered", "model class poly", "kalman true without kalman.json", "sha256 of model wrong",
