@@ -23,7 +23,9 @@ log = logging.getLogger(__name__)
 
 _USER_ERRNOS = {errno.ENOSPC: "no space left on the device", errno.EDQUOT: "disk quota exceeded",
                 errno.EROFS: "read-only file system", errno.EACCES: "permission denied",
-                errno.EPERM: "operation not permitted", errno.EFBIG: "file too large for the file system"}
+                errno.EPERM: "operation not permitted", errno.EFBIG: "file too large for the file system",
+                errno.EISDIR: "it is a folder", errno.ENOTDIR: "a part of the path is a file, not a folder",
+                errno.ENAMETOOLONG: "name too long"}
 
 
 class OutputError(GyronetError, OSError):
@@ -43,6 +45,8 @@ def atomic_output(path: str | os.PathLike) -> Iterator[Path]:
         path.parent.mkdir(parents=True, exist_ok=True)
         fd, name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".part", dir=path.parent)
         os.close(fd)
+    except FileExistsError as err:  # mkdir: a part of the folder path is a file
+        raise _user_error(path, OSError(errno.ENOTDIR, err.strerror)) from None
     except OSError as err:
         raise _user_error(path, err) from None
     tmp = Path(name)
@@ -59,12 +63,15 @@ def atomic_output(path: str | os.PathLike) -> Iterator[Path]:
     log.debug("wrote %s", path)
 
 
+_FULL = {errno.ENOSPC, errno.EDQUOT, errno.EFBIG}
+
+
 def _user_error(path: Path, err: OSError) -> OSError:
     reason = _USER_ERRNOS.get(err.errno)
-    if reason is None:
+    if reason is None or isinstance(err, OutputError):
         return err
-    error = OutputError(f"{path}: cannot write ({reason}); nothing was written: free space or choose "
-                        f"another output folder and run again")
+    advice = "free space or choose another output folder" if err.errno in _FULL else "choose another output path"
+    error = OutputError(f"{path}: cannot write ({reason}); nothing was written: {advice} and run again")
     error.errno = err.errno
     return error
 

@@ -114,3 +114,13 @@ def test_atomic_output_keeps_other_errors_and_cleans_up(tmp_path):
     umask = os.umask(0)
     os.umask(umask)
     assert (tmp_path / "sub" / "y.csv").stat().st_mode & 0o777 == 0o666 & ~umask  # not mkstemp's 0600
+
+
+def test_output_onto_a_folder_or_under_a_file_is_one_line(tmp_path):
+    (tmp_path / "folder").mkdir()
+    (tmp_path / "file").write_text("x")
+    for target, reason in ((tmp_path / "folder", "it is a folder"), (tmp_path / "file" / "o.csv", "is a file")):
+        with pytest.raises(OutputError, match=reason) as info:
+            write_csv(target, {"a": np.arange(3.0)})
+        assert "\n" not in str(info.value) and str(target) in str(info.value)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["file", "folder"] and not any((tmp_path / "folder").iterdir())
