@@ -14,9 +14,10 @@ from typing import Any, Mapping, NamedTuple
 import numpy as np
 import torch
 
+from gyronet.bundle_schema import KALMAN_FILE, META_FILE, check_model, validate_meta
 from gyronet.data import GYRO_COLUMNS
-from gyronet.errors import BundleError
-from gyronet.export import load_bundle
+from gyronet.errors import BundleError, GyronetError
+from gyronet.export import read_bundle
 from gyronet.features import FeatureExtractor
 
 log = logging.getLogger(__name__)
@@ -24,6 +25,8 @@ log = logging.getLogger(__name__)
 # Rows per model call on a long batch: intermediates of 64 k rows stay in cache, which makes a
 # whole recording about six times faster than one call on all of it (scripts/bench.py).
 CHUNK_ROWS = 65536
+# a data rate this far from the bundle's fs_hz (relative) is the bundle's rate with a clock error
+RATE_TOLERANCE = 0.05
 
 
 class Compensated(NamedTuple):
@@ -37,22 +40,64 @@ class Compensated(NamedTuple):
 class Compensator:
     """Stateful compensator built from a bundle's model, metadata and optional Kalman stage."""
 
-    def __init__(self, model: torch.nn.Module, meta: Mapping[str, Any], kalman: Mapping[str, Any] | None = None):
+    def __init__(self, model: torch.nn.Module, meta: Mapping[str, Any], kalman: Mapping[str, Any] | None = None,
+                 source: str | Path | None = None):
+        # source: the bundle folder, for messages; meta is checked against the schema either way
+        self.source = str(source) if source is not None else "bundle"
+        validate_meta(meta, f"{source}/{META_FILE}" if source is not None else META_FILE)
         self.model, self.meta = model, dict(meta)
-        self.extractor = FeatureExtractor(self.meta["features"], float(self.meta["fs_hz"]))
+        self.bundle_fs_hz = float(self.meta["fs_hz"])
+        self.fs_hz = self.bundle_fs_hz  # the rate the features run at (use_input_rate may change it)
+        self.extractor = FeatureExtractor(self.meta["features"], self.fs_hz)
         self.temp_range_c = tuple(self.meta["temp_range_c"])
         self.kalman = None
         if kalman is not None:
-            from gyronet.kalman import KalmanStage
-
-            self.kalman = KalmanStage.from_dict(kalman)
+            self.kalman = _kalman_stage(kalman, self.bundle_fs_hz,
+                                        f"{source}/{KALMAN_FILE}" if source is not None else KALMAN_FILE)
         self.input_columns = list(dict.fromkeys([*self.extractor.columns, *GYRO_COLUMNS]))
         self.n_out_of_range = 0
 
     @classmethod
     def load(cls, bundle_dir: str | Path) -> "Compensator":
-        """Load a bundle folder (CONTRACT.md section 2)."""
-        return cls(*load_bundle(bundle_dir))
+        """Load a bundle folder (CONTRACT.md section 2); a damaged or mismatched bundle is a one-line BundleError."""
+        bundle = read_bundle(bundle_dir)
+        compensator = cls(bundle.model, bundle.meta, bundle.kalman, source=bundle_dir)
+        check_model(bundle.model, bundle.facts, compensator.meta, str(bundle_dir))
+        return compensator
+
+    def use_input_rate(self, fs_hz: float, resample: bool, source: str) -> None:
+        """Run at the data's sampling rate ``fs_hz``, or refuse a rate the bundle was not trained at.
+
+        Within ``RATE_TOLERANCE`` of the bundle's ``fs_hz`` nothing changes. Further off, a
+        BundleError names both rates, unless ``resample``: then the feature filters are rebuilt
+        for ``fs_hz`` (they are defined by time constants in seconds, so they keep the
+        continuous-time behaviour the model was trained on) and the state is reset. A bundle
+        with a Kalman stage is refused: its drift and noise model was identified per sample at
+        the bundle's rate, and moving an AR(p) model to another rate is not exact.
+        """
+        fs_hz = float(fs_hz)
+        if not np.isfinite(fs_hz) or fs_hz <= 0:
+            raise BundleError(f"{source}: sampling rate {fs_hz!r} Hz is not a rate > 0")
+        if abs(fs_hz / self.bundle_fs_hz - 1.0) <= RATE_TOLERANCE:
+            if self.fs_hz != self.bundle_fs_hz:
+                self._run_at(self.bundle_fs_hz)
+            return
+        if not resample:
+            raise BundleError(f"{source}: sampled at {fs_hz:g} Hz, but the bundle {self.source} was trained at "
+                              f"{self.bundle_fs_hz:g} Hz (more than {RATE_TOLERANCE:.0%} apart); pass resample=true "
+                              f"to run it at {fs_hz:g} Hz, or use a bundle trained at that rate")
+        if self.kalman is not None:
+            raise BundleError(f"{source}: sampled at {fs_hz:g} Hz, but the bundle {self.source} has a Kalman stage "
+                              f"identified at {self.bundle_fs_hz:g} Hz, which cannot be resampled; use a bundle "
+                              "trained at the data's rate, or one trained with kalman=disabled")
+        log.warning("%s: %g Hz data on a bundle trained at %g Hz: the feature filters run at %g Hz (resample=true)",
+                    source, fs_hz, self.bundle_fs_hz, fs_hz)
+        self._run_at(fs_hz)
+
+    def _run_at(self, fs_hz: float) -> None:
+        self.fs_hz = fs_hz
+        self.extractor = FeatureExtractor(self.meta["features"], fs_hz)
+        self.reset()
 
     def reset(self) -> None:
         """Start a new stream: forget the filter states."""
@@ -105,3 +150,18 @@ def build_meta(feature_specs: list, feature_names: list, fs_hz: float, temp_rang
         "data_sha256": data_sha256,
         "model": dict(model_info),
     }
+
+
+def _kalman_stage(data: Mapping[str, Any], bundle_fs_hz: float, source: str):
+    """The bundle's Kalman stage, or a one-line BundleError for a kalman.json that cannot be one."""
+    from gyronet.kalman import KalmanStage
+
+    try:
+        stage = KalmanStage.from_dict(data)
+    except (GyronetError, KeyError, TypeError, ValueError, AttributeError, IndexError, np.linalg.LinAlgError) as err:
+        what = f"missing field {err}" if isinstance(err, KeyError) else str(err).strip().splitlines()[0]
+        raise BundleError(f"{source}: not a valid Kalman stage ({what[:160]})") from None
+    if abs(stage.model.fs_hz / bundle_fs_hz - 1.0) > 1e-9:
+        raise BundleError(f"{source}: identified at {stage.model.fs_hz:g} Hz, but meta.json says the bundle runs "
+                          f"at {bundle_fs_hz:g} Hz; the files come from different bundles")
+    return stage

@@ -8,9 +8,14 @@ import numpy as np
 
 from gyronet.compensator import Compensated, Compensator
 from gyronet.data import AXES, GYRO_COLUMNS, Recording, load_recording, write_recording
+from gyronet.atomic import atomic_output
+from gyronet.errors import RecordingError
 from gyronet.fastcsv import write_csv
 
 log = logging.getLogger(__name__)
+
+# 13 digits: half a unit of the 13th is at most 5e-13 of the value, inside the 1e-12 round trip
+SIGNIFICANT_DIGITS = 13
 
 
 def output_columns(time_s: np.ndarray, temp_c: np.ndarray, out: Compensated) -> dict[str, np.ndarray]:
@@ -24,12 +29,15 @@ def output_columns(time_s: np.ndarray, temp_c: np.ndarray, out: Compensated) -> 
 
 
 def write_compensated(path: str | Path, columns: dict[str, np.ndarray], bundle_dir: str | Path) -> Path:
-    """Write a compensated file: 12 significant digits of each column's largest value (the
-    vectorised writer), or pandas' ``%.12g`` per value if a column is not finite."""
+    """Write a compensated file whole or not at all (:func:`gyronet.atomic.atomic_output`): 13
+    significant digits of every value, so any value reads back within 1e-12 relative (the
+    vectorised writer), or pandas' ``%.13g`` per value if a column is not finite."""
     meta = {"compensated_by": Path(bundle_dir).resolve()}
     if all(np.isfinite(v).all() for v in columns.values()):
-        return write_csv(path, columns, meta, significant=12)
-    return write_recording(path, columns, meta, float_format="%.12g")
+        return write_csv(path, columns, meta, significant=SIGNIFICANT_DIGITS)
+    with atomic_output(path) as tmp:
+        write_recording(tmp, columns, meta, float_format=f"%.{SIGNIFICANT_DIGITS}g")
+    return Path(path)
 
 
 def compensate_recording(compensator: Compensator, recording: Recording) -> Compensated:
@@ -39,10 +47,20 @@ def compensate_recording(compensator: Compensator, recording: Recording) -> Comp
     return compensator.process(recording.columns)
 
 
-def compensate_file(bundle_dir: str | Path, input_path: str | Path, output_path: str | Path) -> dict[str, int]:
-    """``compensate.py``: read, compensate, write; return counts for the log."""
+def compensate_file(bundle_dir: str | Path, input_path: str | Path, output_path: str | Path,
+                    resample: bool = False) -> dict[str, int]:
+    """``compensate.py``: read, compensate, write; return counts for the log.
+
+    A recording whose rate differs from the bundle's ``fs_hz`` by more than 5 % is refused unless
+    ``resample`` (:meth:`Compensator.use_input_rate`).
+    """
     compensator = Compensator.load(bundle_dir)
     recording = load_recording(input_path)
+    try:
+        fs_hz = recording.fs_hz
+    except ValueError:
+        raise RecordingError(f"{recording.path}: '# fs_hz={recording.meta.get('fs_hz')}' is not a rate in Hz") from None
+    compensator.use_input_rate(fs_hz, resample, str(recording.path))
     out = compensate_recording(compensator, recording)
     write_compensated(output_path, output_columns(recording.time_s, recording.temp_c, out), bundle_dir)
     n_oor = int(out.out_of_range.sum())

@@ -9,7 +9,7 @@ from gyronet.offline import compensate_file
 @hydra.main(version_base="1.3", config_path="../conf/deploy", config_name="compensate")
 @exit_on_error
 def main(cfg: DictConfig) -> None:
-    compensate_file(cfg.model, cfg.input, cfg.output)
+    compensate_file(cfg.model, cfg.input, cfg.output, resample=bool(cfg.get("resample", False)))
 
 
 if __name__ == "__main__":

@@ -80,7 +80,8 @@ def test_script_refuses_bad_file_without_traceback(tmp_path):
     path = tmp_path / "bad.csv"
     path.write_text(f"{HEADER}\n0,20,1,2,3\n0.1,20,x,2,3\n")
     proc = subprocess.run([sys.executable, "scripts/compensate.py", f"model={tmp_path}", f"input={path}",
-                           f"output={tmp_path / 'o.csv'}"], cwd=ROOT, capture_output=True, text=True)
+                           f"output={tmp_path / 'o.csv'}", f"hydra.run.dir={tmp_path / 'hydra'}"], cwd=ROOT,
+                          capture_output=True, text=True)
     assert proc.returncode == 2
     assert "Traceback" not in proc.stderr
     assert proc.stderr.strip().count("\n") == 0 and proc.stderr.startswith("error: ")

@@ -1,0 +1,85 @@
+"""Write an output file whole or not at all: a temporary file in the same folder, renamed into place.
+
+A full disk, a quota or a crash halfway leaves the previous file (or none) instead of a file
+whose last line is cut in half, and a full disk becomes one :class:`OutputError` line for the
+user instead of a traceback. Use it for every file a command writes::
+
+    with atomic_output(path) as tmp:
+        frame.to_csv(tmp)          # anything that writes a file at ``tmp``
+"""
+from __future__ import annotations
+
+import contextlib
+import errno
+import logging
+import os
+import tempfile
+from pathlib import Path
+from typing import Iterator
+
+from gyronet.errors import GyronetError
+
+log = logging.getLogger(__name__)
+
+_USER_ERRNOS = {errno.ENOSPC: "no space left on the device", errno.EDQUOT: "disk quota exceeded",
+                errno.EROFS: "read-only file system", errno.EACCES: "permission denied",
+                errno.EPERM: "operation not permitted", errno.EFBIG: "file too large for the file system",
+                errno.EISDIR: "it is a folder", errno.ENOTDIR: "a part of the path is a file, not a folder",
+                errno.ENAMETOOLONG: "name too long"}
+
+
+class OutputError(GyronetError, OSError):
+    """An output file that could not be written (full disk, no permission); nothing was left behind."""
+
+
+@contextlib.contextmanager
+def atomic_output(path: str | os.PathLike) -> Iterator[Path]:
+    """Yield a temporary path beside ``path``; when the block ends without error, rename it to ``path``.
+
+    On any error the temporary file is removed and ``path`` is left as it was. An OSError that a
+    user can act on (no space, quota, read-only, permission) becomes one :class:`OutputError`
+    line naming ``path``; other exceptions pass through unchanged.
+    """
+    path = Path(path)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".part", dir=path.parent)
+        os.close(fd)
+    except FileExistsError as err:  # mkdir: a part of the folder path is a file
+        raise _user_error(path, OSError(errno.ENOTDIR, err.strerror)) from None
+    except OSError as err:
+        raise _user_error(path, err) from None
+    tmp = Path(name)
+    try:
+        yield tmp
+        os.chmod(tmp, 0o666 & ~_UMASK)  # mkstemp's 0600 is for the temporary file only
+        os.replace(tmp, path)
+    except OSError as err:
+        tmp.unlink(missing_ok=True)
+        raise _user_error(path, err) from None
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+    log.debug("wrote %s", path)
+
+
+_FULL = {errno.ENOSPC, errno.EDQUOT, errno.EFBIG}
+
+
+def _user_error(path: Path, err: OSError) -> OSError:
+    reason = _USER_ERRNOS.get(err.errno)
+    if reason is None or isinstance(err, OutputError):
+        return err
+    advice = "free space or choose another output folder" if err.errno in _FULL else "choose another output path"
+    error = OutputError(f"{path}: cannot write ({reason}); nothing was written: {advice} and run again")
+    error.errno = err.errno
+    return error
+
+
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
+_UMASK = _umask()  # read once, at import: os.umask is process-wide and not thread-safe
