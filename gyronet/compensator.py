@@ -18,7 +18,7 @@ from gyronet.data import GYRO_COLUMNS
 from gyronet.errors import BundleError
 from gyronet.export import load_bundle
 from gyronet.features import FeatureExtractor
-from gyronet.guard import bad_gyro
+from gyronet.guard import GYRO_RANGE_DPS, bad_gyro
 
 log = logging.getLogger(__name__)
 
@@ -93,21 +93,27 @@ class Compensator:
         """
         drift_dps = self.drift(columns)
         gyro_dps = np.column_stack([np.asarray(columns[c], dtype=np.float64) for c in GYRO_COLUMNS])
-        bad_dps = bad_gyro(gyro_dps)
-        rate_dps = self._filtered(gyro_dps - drift_dps, bad_dps)
+        bad_input = self.extractor.rejected
+        # one comparison in the usual case (NaN compares False)
+        if len(gyro_dps) and np.abs(gyro_dps).max() <= GYRO_RANGE_DPS:
+            rate_dps = self._stage(gyro_dps - drift_dps)
+        else:
+            bad_dps = bad_gyro(gyro_dps)
+            rate_dps = self._filtered(gyro_dps - drift_dps, bad_dps)
+            bad_input = bad_input | bad_dps.any(1)
         temp_c = np.asarray(columns["temp_c"], dtype=np.float64)
         low, high = self.temp_range_c
         out_of_range = (temp_c < low) | (temp_c > high)
         self.n_out_of_range += int(out_of_range.sum())
-        bad_input = self.extractor.rejected | bad_dps.any(1)
-        self.n_bad_input += int(bad_input.sum())
+        self.n_bad_input += int(np.count_nonzero(bad_input))
         return Compensated(rate_dps, drift_dps, out_of_range, bad_input)
 
     def _filtered(self, rate_dps: np.ndarray, bad_dps: np.ndarray) -> np.ndarray:
         """The Kalman stage (if any) on the compensated rate, bad values replaced by the last output."""
+        bad_rows = bad_dps.any(1)
         out = np.empty_like(rate_dps)
         start = 0
-        for row in np.flatnonzero(bad_dps.any(1)).tolist():
+        for row in np.flatnonzero(bad_rows).tolist():
             out[start:row] = self._stage(rate_dps[start:row])
             last = np.zeros(rate_dps.shape[1]) if self._last_rate_dps is None else self._last_rate_dps
             out[row] = self._stage(np.where(bad_dps[row], last, rate_dps[row])[None])[0]
@@ -120,7 +126,7 @@ class Compensator:
             return rate_dps
         if self.kalman is not None:
             rate_dps = self.kalman.process(rate_dps)
-        self._last_rate_dps = rate_dps[-1].copy()
+        self._last_rate_dps = rate_dps[-1]  # a view: rate_dps is never written to afterwards
         return rate_dps
 
 

@@ -38,9 +38,8 @@ GYRO_RANGE_DPS = 1e4  # beyond every MEMS gyro's full scale (+-2000 deg/s typica
 
 def bad_gyro(gyro_dps: np.ndarray) -> np.ndarray:
     """Mask (n, 3) of gyro values that are not finite or beyond ``GYRO_RANGE_DPS``."""
-    gyro_dps = np.asarray(gyro_dps, dtype=np.float64)
-    with np.errstate(invalid="ignore"):
-        return ~(np.abs(gyro_dps) <= GYRO_RANGE_DPS)
+    # NaN compares False: bad too
+    return ~(np.abs(np.asarray(gyro_dps, dtype=np.float64)) <= GYRO_RANGE_DPS)
 
 
 class TempGuard:
