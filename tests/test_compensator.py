@@ -117,3 +117,19 @@ def test_output_columns_carry_the_bad_input_flag_and_old_tuples_still_work():
     old = output_columns(np.arange(3.0), np.full(3, 25.0), Compensated(rate, rate, np.zeros(3, bool)))
     assert old["bad_input"].tolist() == [0, 0, 0]
     assert list(old) == ["time_s", *GYRO_COLUMNS, "temp_c", "out_of_range", "bad_input"]
+
+
+def test_the_default_bundle_holds_its_edge_value_at_a_steady_temperature(bundle):
+    """Before, 40 degC above the edge the default model's x output had moved 1.1 deg/s."""
+    import torch
+
+    compensator = Compensator.load(bundle)
+    low, high = compensator.temp_range_c
+    names = compensator.extractor.names
+    assert names[:3] == ["temp_c", "temp_rate_c_per_s", "temp_x_rate_c2_per_s"]
+    steady = torch.zeros(4, len(names), dtype=torch.float64)
+    steady[:, 0] = torch.tensor([high + 40.0, high + 60.0, low - 40.0, low - 60.0])
+    with torch.no_grad():
+        out = compensator.model(steady)
+    torch.testing.assert_close(out[0], out[1], rtol=0, atol=1e-12)
+    torch.testing.assert_close(out[2], out[3], rtol=0, atol=1e-12)
