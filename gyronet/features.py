@@ -45,7 +45,7 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 
 from gyronet.filters import Lag, RateTracker
-from gyronet.guard import MAX_TEMP_RATE_C_PER_S, SENSOR_RANGE_C, TempGuard, in_sensor_range
+from gyronet.guard import MAX_TEMP_RATE_C_PER_S, TempGuard, in_sensor_range
 
 log = logging.getLogger(__name__)
 
@@ -307,10 +307,10 @@ class FeatureExtractor:
             out[before] = carry if carry is not None else self._power_on_rows({k: v[before] for k, v in source.items()})
 
     def _power_on_rows(self, source: Mapping[str, np.ndarray]) -> np.ndarray:
-        """Features of rejected rows before any accepted one: a fresh filter's output at a sane value."""
+        """Features of rejected rows before any accepted one: a fresh filter's output at a prior (room
+        temperature; other columns as read, 0 where not finite)."""
         values = {k: np.nan_to_num(v, nan=0.0, posinf=0.0, neginf=0.0) for k, v in source.items()}
-        values["temp_c"] = np.where(np.isfinite(source["temp_c"]), np.clip(source["temp_c"], *SENSOR_RANGE_C),
-                                    PRIOR_TEMP_C)
+        values["temp_c"] = np.full(len(values["temp_c"]), PRIOR_TEMP_C)
         rows = np.zeros((len(values["temp_c"]), len(self.specs)))
         for i, spec in enumerate(self.specs):
             kind, x = spec["kind"], values.get(spec.get("source", "temp_c"))
