@@ -9,7 +9,7 @@ features for them are the filters' predictions). The bounds are physical, not st
   (-40..125 degC at most) with a margin;
 - it differs from the last accepted reading by at most ``JUMP_C + MAX_TEMP_RATE_C_PER_S * dt``:
   a sensor die with any thermal mass heats or cools far slower than 1 degC/s (a fast chamber
-  ramp is 0.03 degC/s, a self-heating warm-up 0.2 degC/s), and ``JUMP_C`` covers quantisation up
+  ramp is 0.03 degC/s, a self-heating warm-up a few tenths of a degC/s at most), and ``JUMP_C`` covers quantisation up
   to a 1 degC LSB and noise. The real records here move at most 0.18 degC between samples, the
   psim-tvc record 0.5 degC across a 300 s break.
 
@@ -17,6 +17,7 @@ A reading that really did step (a sensor re-zeroed, a record pasted from two ses
 once the readings have agreed with the new level for ``CONFIRM_SAMPLES`` samples and
 ``CONFIRM_S`` seconds; the filters restart there. A burst of garbage shorter than that is
 rejected whole, however consistent it is.
+
 The bound is on the last accepted reading, not on a filter's prediction, so it holds whichever
 features a bundle uses and costs a comparison per sample.
 """
