@@ -19,6 +19,7 @@ from gyronet.data import GYRO_COLUMNS
 from gyronet.errors import BundleError, GyronetError
 from gyronet.export import read_bundle
 from gyronet.features import FeatureExtractor
+from gyronet.guard import GYRO_RANGE_DPS, bad_gyro
 
 log = logging.getLogger(__name__)
 
@@ -35,6 +36,9 @@ class Compensated(NamedTuple):
     rate_dps: np.ndarray  # (n, 3) compensated (and, with the Kalman stage, filtered) rate
     drift_dps: np.ndarray  # (n, 3) the model's drift estimate
     out_of_range: np.ndarray  # (n,) bool: temperature outside the range the model was trained on
+    # (n,) bool: an impossible input (temperature or gyro, gyronet.guard) kept out of every filter's
+    # state; None (older callers) means none
+    bad_input: np.ndarray | None = None
 
 
 class Compensator:
@@ -56,6 +60,8 @@ class Compensator:
                                         f"{source}/{KALMAN_FILE}" if source is not None else KALMAN_FILE)
         self.input_columns = list(dict.fromkeys([*self.extractor.columns, *GYRO_COLUMNS]))
         self.n_out_of_range = 0
+        self.n_bad_input = 0  # rows flagged ``bad_input`` since reset()
+        self._last_rate_dps: np.ndarray | None = None  # the last output row: what a bad gyro value becomes
 
     @classmethod
     def load(cls, bundle_dir: str | Path) -> "Compensator":
@@ -105,6 +111,7 @@ class Compensator:
         if self.kalman is not None:
             self.kalman.reset()
         self.n_out_of_range = 0
+        self.n_bad_input, self._last_rate_dps = 0, None
 
     def check_columns(self, columns: Mapping[str, Any], source: str = "input") -> None:
         """Raise a BundleError naming the columns this bundle needs and ``source`` lacks."""
@@ -121,17 +128,50 @@ class Compensator:
             return torch.cat([self.model(chunk) for chunk in features.split(CHUNK_ROWS)]).numpy()
 
     def process(self, columns: Mapping[str, np.ndarray]) -> Compensated:
-        """Compensate the next samples; ``columns`` maps each of ``input_columns`` to an array (n,)."""
+        """Compensate the next samples; ``columns`` maps each of ``input_columns`` to an array (n,).
+
+        A row whose temperature the feature extractor rejects gets the features' prediction; a gyro
+        value that is not finite or beyond ``gyronet.guard.GYRO_RANGE_DPS`` is replaced by that
+        axis's last output before the Kalman stage, so it never enters the filter's state. Both are
+        flagged in ``bad_input`` and counted in ``n_bad_input``.
+        """
         drift_dps = self.drift(columns)
         gyro_dps = np.column_stack([np.asarray(columns[c], dtype=np.float64) for c in GYRO_COLUMNS])
-        rate_dps = gyro_dps - drift_dps
-        if self.kalman is not None:
-            rate_dps = self.kalman.process(rate_dps)
+        bad_input = self.extractor.rejected
+        # one comparison in the usual case (NaN compares False)
+        if len(gyro_dps) and np.abs(gyro_dps).max() <= GYRO_RANGE_DPS:
+            rate_dps = self._stage(gyro_dps - drift_dps)
+        else:
+            bad_dps = bad_gyro(gyro_dps)
+            rate_dps = self._filtered(gyro_dps - drift_dps, bad_dps)
+            bad_input = bad_input | bad_dps.any(1)
         temp_c = np.asarray(columns["temp_c"], dtype=np.float64)
         low, high = self.temp_range_c
         out_of_range = (temp_c < low) | (temp_c > high)
         self.n_out_of_range += int(out_of_range.sum())
-        return Compensated(rate_dps, drift_dps, out_of_range)
+        self.n_bad_input += int(np.count_nonzero(bad_input))
+        return Compensated(rate_dps, drift_dps, out_of_range, bad_input)
+
+    def _filtered(self, rate_dps: np.ndarray, bad_dps: np.ndarray) -> np.ndarray:
+        """The Kalman stage (if any) on the compensated rate, bad values replaced by the last output."""
+        bad_rows = bad_dps.any(1)
+        out = np.empty_like(rate_dps)
+        start = 0
+        for row in np.flatnonzero(bad_rows).tolist():
+            out[start:row] = self._stage(rate_dps[start:row])
+            last = np.zeros(rate_dps.shape[1]) if self._last_rate_dps is None else self._last_rate_dps
+            out[row] = self._stage(np.where(bad_dps[row], last, rate_dps[row])[None])[0]
+            start = row + 1
+        out[start:] = self._stage(rate_dps[start:])
+        return out
+
+    def _stage(self, rate_dps: np.ndarray) -> np.ndarray:
+        if len(rate_dps) == 0:
+            return rate_dps
+        if self.kalman is not None:
+            rate_dps = self.kalman.process(rate_dps)
+        self._last_rate_dps = rate_dps[-1]  # a view: rate_dps is never written to afterwards
+        return rate_dps
 
 
 def build_meta(feature_specs: list, feature_names: list, fs_hz: float, temp_range_c: tuple[float, float],

@@ -1,10 +1,21 @@
 """Causal drift-model inputs, computed from samples up to now by one stateful extractor.
 
 The batch path (training, ``compensate.py``) and the live path (``stream.py``) call the same
-``FeatureExtractor.process`` with the same state, on a whole recording or on one sample at a
-time, so both give the same numbers. Every filter here is a linear recursion run by
-``scipy.signal.lfilter`` with explicit state, so a chunk of one sample costs microseconds and a
-recording of a million samples costs milliseconds.
+``FeatureExtractor.process`` with the same state, on a whole recording, on chunks of any size or
+on one sample at a time, and get the same numbers. Every filter (``gyronet.filters``) is a linear
+recursion run by ``scipy.signal.lfilter`` with explicit state, so a chunk of one sample costs
+microseconds and a recording of a million samples costs milliseconds.
+
+Lost samples and glitches:
+
+- an interval longer than ``GAP_FACTOR`` sample periods is a gap. dT/dt predicts through a gap
+  up to its time constant and restarts from the mean slope over a longer one; a lag relaxes over
+  the gap exactly; no restart divides an error by the gap, so no loss pattern can make a feature
+  diverge;
+- a row whose temperature is impossible (outside the sensor's range, or a jump no thermal mass
+  allows: ``gyronet.guard``) or that holds a NaN is a lost sample too: it never enters a filter's
+  state and its features are the prediction, so a glitch corrupts its own row only, flagged in
+  ``rejected``. A step that later samples confirm restarts every filter.
 
 A feature is a small dict (a "spec") that ``meta.json`` stores, so a bundle rebuilds exactly
 the extractor it was trained with:
@@ -28,10 +39,13 @@ feature times the sample interval, a constant factor the model absorbs.
 from __future__ import annotations
 
 import logging
+import math
 from typing import Any, Mapping, Sequence
 
 import numpy as np
-from scipy import signal
+
+from gyronet.filters import Lag, RateTracker
+from gyronet.guard import MAX_TEMP_RATE_C_PER_S, TempGuard, in_sensor_range
 
 log = logging.getLogger(__name__)
 
@@ -41,7 +55,8 @@ PAPER_FEATURES: list[dict[str, Any]] = [
     {"kind": "product"},
 ]
 
-GAP_FACTOR = 1.5  # an interval longer than this many sample periods is a break in the record
+GAP_FACTOR = 1.5  # an interval longer than this many sample periods is a gap: lost samples
+PRIOR_TEMP_C = 25.0  # the temperature assumed for rejected rows before any sample was accepted
 
 
 def feature_name(spec: Mapping[str, Any]) -> str:
@@ -79,88 +94,6 @@ def required_columns(specs: Sequence[Mapping[str, Any]]) -> list[str]:
     return needed
 
 
-def _lfilter(b: np.ndarray, a: np.ndarray, x: np.ndarray, zi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """``scipy.signal.lfilter`` with state; one live sample takes a plain-float path ten times faster.
-
-    The short path is the direct-form-II-transposed step scipy runs (``a[0] == 1``), with the same
-    operations in the same order, so both paths give the same numbers.
-    """
-    if len(x) != 1 or a[0] != 1.0:
-        return signal.lfilter(b, a, x, zi=zi)
-    order = len(zi)
-    b_list = [*b.tolist(), *[0.0] * (order + 1 - len(b))]
-    a_list = [*a.tolist(), *[0.0] * (order + 1 - len(a))]
-    value = float(x[0])
-    z = zi.tolist()
-    y = z[0] + value * b_list[0]
-    for i in range(order - 1):
-        z[i] = z[i + 1] + value * b_list[i + 1] - y * a_list[i + 1]
-    z[order - 1] = value * b_list[order] - y * a_list[order]
-    return np.array([y]), np.array(z)
-
-
-class _Lag:
-    """First-order lag y' = (x - y) / tau, exact for a sample-and-hold input; restarts across gaps."""
-
-    def __init__(self, tau_s: float, dt_s: float):
-        self.tau_s = tau_s
-        decay = np.exp(-dt_s / tau_s)
-        # y[n] = decay * y[n-1] + (1 - decay) * x[n]
-        self.b, self.a = np.array([1.0 - decay]), np.array([1.0, -decay])
-        self.zi: np.ndarray | None = None
-        self.last_y = 0.0
-
-    def restart(self, x0: float, gap_s: float | None) -> None:
-        # after a gap the lag has relaxed towards the new input: y = x0 + (y_old - x0) e^(-gap/tau)
-        y0 = x0 if gap_s is None else x0 + (self.last_y - x0) * np.exp(-gap_s / self.tau_s)
-        # state that makes the first output equal decay * y0 + (1 - decay) * x0
-        self.zi = np.array([-self.a[1] * y0])
-
-    def run(self, x: np.ndarray) -> np.ndarray:
-        y, self.zi = _lfilter(self.b, self.a, x, self.zi)
-        self.last_y = float(y[-1])
-        return y
-
-
-class _RateTracker:
-    """Critically damped alpha-beta tracker: level and slope of a quantised, noisy signal.
-
-    A type-2 loop: on a constant ramp the slope estimate has no lag and no bias, which a
-    differentiated low-pass filter cannot give. Both poles sit at exp(-dt/tau).
-
-    References
-    ----------
-    Kalata, P. R. (1984). The tracking index: a generalized parameter for alpha-beta and
-    alpha-beta-gamma target trackers. IEEE Trans. AES-20(2), 174-182.
-    """
-
-    def __init__(self, tau_s: float, dt_s: float):
-        theta = np.exp(-dt_s / tau_s)
-        alpha, beta = 1.0 - theta**2, (1.0 - theta) ** 2
-        # x = (I - K H) F x_prev + K z, with x = [level, slope], F = [[1, dt], [0, 1]], K = [alpha, beta/dt]
-        gain = np.array([[alpha], [beta / dt_s]])
-        transition = (np.eye(2) - gain @ np.array([[1.0, 0.0]])) @ np.array([[1.0, dt_s], [0.0, 1.0]])
-        num, den = signal.ss2tf(transition, gain, transition, gain)
-        self.b_level, self.b_slope, self.a = num[0], num[1], den
-        self.dt_s = dt_s
-        self.zi: tuple[np.ndarray, np.ndarray] | None = None
-        self.last_level = 0.0
-
-    def restart(self, z0: float, slope0: float) -> None:
-        """Set the state to a steady ramp through z0 with slope0 (the tracker follows it exactly)."""
-        order = len(self.a) - 1
-        past_z = z0 - slope0 * self.dt_s * np.arange(1, order + 1)
-        self.zi = (signal.lfiltic(self.b_level, self.a, past_z, past_z),
-                   signal.lfiltic(self.b_slope, self.a, np.full(order, slope0), past_z))
-
-    def run(self, z: np.ndarray) -> np.ndarray:
-        level, zi_level = _lfilter(self.b_level, self.a, z, self.zi[0])
-        slope, zi_slope = _lfilter(self.b_slope, self.a, z, self.zi[1])
-        self.zi = (zi_level, zi_slope)
-        self.last_level = float(level[-1])
-        return slope
-
-
 class FeatureExtractor:
     """Turn recording columns into model inputs, causally, keeping state between calls.
 
@@ -169,8 +102,17 @@ class FeatureExtractor:
     specs
         Feature specs (see the module docstring); order is the column order of the output.
     fs_hz
-        Nominal sampling rate the filters are designed for. Intervals longer than
-        ``GAP_FACTOR / fs_hz`` are breaks: filters restart from the first sample after them.
+        Nominal sampling rate the filters are designed for. An interval longer than
+        ``GAP_FACTOR / fs_hz`` is a gap: each filter bridges or restarts (see ``Lag`` and
+        ``RateTracker``); none carries an error over amplified.
+
+    Notes
+    -----
+    A row that ``gyronet.guard.TempGuard`` rejects (temperature outside the sensor's range or
+    jumping faster than any thermal mass allows, or a NaN in any input) is a lost sample: it
+    never enters a filter's state, and its features are the prediction, those of the last
+    accepted row (time features at its own time). ``rejected`` holds the mask of the last call,
+    ``n_rejected`` the count since ``reset()``.
     """
 
     def __init__(self, specs: Sequence[Mapping[str, Any]], fs_hz: float):
@@ -183,19 +125,26 @@ class FeatureExtractor:
         self.columns = required_columns(self.specs)
         self._filters: dict[int, Any] = {}
         self._play: dict[int, float] = {}
+        self._time_index = [i for i, s in enumerate(self.specs) if s["kind"] == "time"]
+        self.guard = TempGuard()
         self.reset()
 
     def reset(self) -> None:
         """Forget the past, as at power-on."""
-        self._last_time_s: float | None = None
+        self._last_time_s: float | None = None  # of the last accepted row
         self._start_time_s: float | None = None
+        self._last_row: np.ndarray | None = None  # features of the last accepted row
+        self.guard.reset()
+        self.rejected = np.zeros(0, dtype=bool)
+        self.n_rejected = 0
         self._filters.clear()
         self._play.clear()
         for i, spec in enumerate(self.specs):
             if spec["kind"] == "rate":
-                self._filters[i] = _RateTracker(float(spec.get("tau_s", 5.0)), self.dt_s)
+                max_slope = MAX_TEMP_RATE_C_PER_S if spec.get("source", "temp_c") == "temp_c" else math.inf
+                self._filters[i] = RateTracker(float(spec.get("tau_s", 5.0)), self.dt_s, max_slope)
             elif spec["kind"] == "lag" or (spec["kind"] == "column" and float(spec.get("tau_s", 0)) > 0):
-                self._filters[i] = _Lag(float(spec["tau_s"]), self.dt_s)
+                self._filters[i] = Lag(float(spec["tau_s"]), self.dt_s)
 
     def process(self, columns: Mapping[str, np.ndarray]) -> np.ndarray:
         """Features of the next samples.
@@ -208,56 +157,132 @@ class FeatureExtractor:
         Returns
         -------
         np.ndarray
-            Shape (n, len(self.names)), float64.
+            Shape (n, len(self.names)), float64. ``self.rejected`` (n,) marks the rows taken as lost.
         """
         time_s = np.asarray(columns["time_s"], dtype=np.float64)
-        out = np.empty((len(time_s), len(self.specs)))
-        if len(time_s) == 0:
+        n = len(time_s)
+        out = np.empty((n, len(self.specs)))
+        if n == 0:
+            self.rejected = np.zeros(0, dtype=bool)
             return out
-        for start, stop in self._segments(time_s):
-            chunk = {k: np.asarray(columns[k], dtype=np.float64)[start:stop] for k in self.columns}
-            out[start:stop] = self._run_segment(chunk, restart=start > 0 or self._needs_restart(time_s[0]))
-            self._last_time_s = float(time_s[stop - 1])
-        return out
-
-    def _needs_restart(self, first_time_s: float) -> bool:
-        return self._last_time_s is None or first_time_s - self._last_time_s > GAP_FACTOR * self.dt_s
-
-    def _segments(self, time_s: np.ndarray) -> list[tuple[int, int]]:
-        if len(time_s) == 1:
-            return [(0, 1)]
-        breaks = np.flatnonzero(np.diff(time_s) > GAP_FACTOR * self.dt_s) + 1
-        edges = [0, *breaks.tolist(), len(time_s)]
-        return list(zip(edges[:-1], edges[1:]))
-
-    def _run_segment(self, chunk: Mapping[str, np.ndarray], restart: bool) -> np.ndarray:
-        time_s = chunk["time_s"]
+        if n == 1:
+            return self._process_one(float(time_s[0]), {k: float(columns[k][0]) for k in self.columns if k != "time_s"})
         if self._start_time_s is None:
             self._start_time_s = float(time_s[0])
-        gap_s = None if self._last_time_s is None else float(time_s[0]) - self._last_time_s
+        source = {k: np.asarray(columns[k], dtype=np.float64) for k in self.columns if k != "time_s"}
+        others = [v for k, v in source.items() if k != "temp_c"]
+        finite = np.isfinite(np.column_stack(others)).all(1) if others else True
+        accepted, step = self.guard.check(time_s, source["temp_c"], finite)
+        carry = self._last_row
+        if accepted.all():
+            self._run_accepted(time_s, source, step, out)
+        else:
+            keep = np.flatnonzero(accepted)
+            if len(keep):
+                out[keep] = self._run_accepted(time_s[keep], {k: v[keep] for k, v in source.items()}, step[keep],
+                                               np.empty((len(keep), len(self.specs))))
+            self._fill_rejected(out, accepted, carry, source)
+        self._time_features(time_s, out)
+        self.rejected = ~accepted
+        self.n_rejected += n - int(accepted.sum())
+        return out
+
+    def _process_one(self, time_s: float, values: dict[str, float]) -> np.ndarray:
+        """``process`` for one live sample, in plain floats: the same operations as a block."""
+        if self._start_time_s is None:
+            self._start_time_s = time_s
+        valid = in_sensor_range(values["temp_c"]) and all(math.isfinite(v) for v in values.values())
+        accepted, step = self.guard.step(time_s, values["temp_c"], valid)
+        if accepted:
+            gap_s = None if self._last_time_s is None else time_s - self._last_time_s
+            event = "power_on" if gap_s is None or step else ("gap" if gap_s > GAP_FACTOR * self.dt_s else None)
+            row = self._step_row(values, event, None if event == "power_on" else gap_s)
+            self._last_time_s, self._last_row = time_s, np.array(row)
+        elif self._last_row is not None:
+            row = self._last_row.tolist()
+        else:
+            row = self._power_on_rows({k: np.array([v]) for k, v in values.items()})[0].tolist()
+        out = np.array([row])
+        self._time_features(np.array([time_s]), out)
+        self.rejected = np.array([not accepted])
+        self.n_rejected += not accepted
+        return out
+
+    def _time_features(self, time_s: np.ndarray, out: np.ndarray) -> None:
+        """Time features at every row's own time (rejected rows too: the clock is not in doubt)."""
+        for i in self._time_index:
+            elapsed_s = time_s - self._start_time_s
+            tau_s = self.specs[i].get("tau_s")
+            out[:, i] = np.exp(-elapsed_s / float(tau_s)) if tau_s else elapsed_s / 3600.0
+
+    def _step_row(self, values: Mapping[str, float], event: str | None, gap_s: float | None) -> list[float]:
+        """The features of one accepted sample (``_run_segment`` for a segment of one, in floats)."""
+        row: list[float] = []
+        rate = None
+        for i, spec in enumerate(self.specs):
+            kind, x = spec["kind"], values.get(spec.get("source", "temp_c"), 0.0)
+            if kind == "temp":
+                value = values["temp_c"]
+            elif i in self._filters:
+                if event is not None:
+                    self._filters[i].restart(x, gap_s)
+                value = self._filters[i].step(x)
+                rate = value if kind == "rate" and rate is None else rate
+            elif kind == "column":
+                value = x
+            elif kind == "product":
+                if rate is None:
+                    raise ValueError("a 'product' feature needs a 'rate' feature before it")
+                value = values["temp_c"] * rate
+            elif kind == "power":
+                value = float(((np.array([x]) - float(spec.get("centre", 0.0))) ** float(spec["exponent"]))[0])
+            elif kind == "hysteresis":
+                value = x - self._run_play(i, [x], float(spec["width"]), event == "power_on")[0]
+            elif kind == "time":
+                value = 0.0  # filled in at the sample's own time
+            else:
+                raise ValueError(f"unknown feature kind {kind!r}")
+            row.append(value)
+        return row
+
+    def _run_accepted(self, time_s: np.ndarray, source: Mapping[str, np.ndarray], step: np.ndarray,
+                      out: np.ndarray) -> np.ndarray:
+        """Run the filters over accepted rows: segments between gaps and confirmed steps."""
+        first_gap_s = None if self._last_time_s is None else float(time_s[0]) - self._last_time_s
+        if len(time_s) == 1:
+            edges = [0, 1]
+        else:
+            breaks = np.flatnonzero((np.diff(time_s) > GAP_FACTOR * self.dt_s) | step[1:]) + 1
+            edges = [0, *breaks.tolist(), len(time_s)]
+        for start, stop in zip(edges[:-1], edges[1:]):
+            gap_s = first_gap_s if start == 0 else float(time_s[start] - time_s[start - 1])
+            if gap_s is None or step[start]:
+                event = "power_on"
+            else:
+                event = "gap" if gap_s > GAP_FACTOR * self.dt_s else None
+            chunk = {k: v[start:stop] for k, v in source.items()}
+            out[start:stop] = self._run_segment(chunk, event, gap_s)
+        self._last_time_s = float(time_s[-1])
+        self._last_row = out[-1].copy()
+        return out
+
+    def _run_segment(self, chunk: Mapping[str, np.ndarray], event: str | None, gap_s: float | None) -> np.ndarray:
+        restart_gap_s = None if event == "power_on" else gap_s
         done: dict[str, np.ndarray] = {}
         for i, spec in enumerate(self.specs):
-            done[self.names[i]] = self._one(i, spec, chunk, done, restart, gap_s)
+            done[self.names[i]] = self._one(i, spec, chunk, done, event, restart_gap_s)
         return np.column_stack([done[n] for n in self.names])
 
     def _one(self, i: int, spec: Mapping[str, Any], chunk: Mapping[str, np.ndarray],
-             done: Mapping[str, np.ndarray], restart: bool, gap_s: float | None) -> np.ndarray:
+             done: Mapping[str, np.ndarray], event: str | None, gap_s: float | None) -> np.ndarray:
         kind, source = spec["kind"], spec.get("source", "temp_c")
         x = chunk.get(source)
         if kind in ("temp", "column") and i not in self._filters:
             return chunk["temp_c"] if kind == "temp" else x
-        if kind in ("lag", "column"):
-            lag = self._filters[i]
-            if restart:
-                lag.restart(float(x[0]), gap_s)
-            return lag.run(x)
-        if kind == "rate":
-            tracker = self._filters[i]
-            if restart:
-                # across a gap, the mean slope over the gap; at power-on, flat
-                slope0 = 0.0 if gap_s is None else (float(x[0]) - tracker.last_level) / gap_s
-                tracker.restart(float(x[0]), slope0)
-            return tracker.run(x)
+        if kind in ("lag", "column", "rate"):
+            if event is not None:
+                self._filters[i].restart(float(x[0]), gap_s)
+            return self._filters[i].run(x)
         if kind == "product":
             rate = next((v for n, v in done.items() if self._kind_of(n) == "rate"), None)
             if rate is None:
@@ -266,12 +291,34 @@ class FeatureExtractor:
         if kind == "power":
             return (x - float(spec.get("centre", 0.0))) ** float(spec["exponent"])
         if kind == "hysteresis":
-            return x - self._run_play(i, x, float(spec["width"]), restart and gap_s is None)
+            return x - self._run_play(i, x, float(spec["width"]), event == "power_on")
         if kind == "time":
-            elapsed_s = chunk["time_s"] - self._start_time_s
-            tau_s = spec.get("tau_s")
-            return np.exp(-elapsed_s / float(tau_s)) if tau_s else elapsed_s / 3600.0
+            return np.zeros(len(chunk["temp_c"]))  # filled in by process, at every row's own time
         raise ValueError(f"unknown feature kind {kind!r}")
+
+    def _fill_rejected(self, out: np.ndarray, accepted: np.ndarray, carry: np.ndarray | None,
+                       source: Mapping[str, np.ndarray]) -> None:
+        """Rejected rows get the last accepted row's features (this call's or the one before)."""
+        previous = np.maximum.accumulate(np.where(accepted, np.arange(len(accepted)), -1))
+        later = ~accepted & (previous >= 0)
+        out[later] = out[previous[later]]
+        before = ~accepted & (previous < 0)
+        if before.any():
+            out[before] = carry if carry is not None else self._power_on_rows({k: v[before] for k, v in source.items()})
+
+    def _power_on_rows(self, source: Mapping[str, np.ndarray]) -> np.ndarray:
+        """Features of rejected rows before any accepted one: a fresh filter's output at a prior (room
+        temperature; other columns as read, 0 where not finite)."""
+        values = {k: np.nan_to_num(v, nan=0.0, posinf=0.0, neginf=0.0) for k, v in source.items()}
+        values["temp_c"] = np.full(len(values["temp_c"]), PRIOR_TEMP_C)
+        rows = np.zeros((len(values["temp_c"]), len(self.specs)))
+        for i, spec in enumerate(self.specs):
+            kind, x = spec["kind"], values.get(spec.get("source", "temp_c"))
+            if kind in ("temp", "column", "lag"):
+                rows[:, i] = values["temp_c"] if kind == "temp" else x
+            elif kind == "power":
+                rows[:, i] = (x - float(spec.get("centre", 0.0))) ** float(spec["exponent"])
+        return rows  # rate, product and hysteresis start at 0
 
     def _kind_of(self, name: str) -> str:
         return self.specs[self.names.index(name)]["kind"]
@@ -279,9 +326,9 @@ class FeatureExtractor:
     def _run_play(self, i: int, x: np.ndarray, width: float, power_on: bool) -> np.ndarray:
         """Play operator: the output follows x only when x leaves the band [p - w, p + w]."""
         play = float(x[0]) if power_on or i not in self._play else self._play[i]
-        out = np.empty_like(x)
-        for n, value in enumerate(x.tolist()):
+        out = []
+        for value in (x.tolist() if isinstance(x, np.ndarray) else x):
             play = min(max(play, value - width), value + width)
-            out[n] = play
+            out.append(play)
         self._play[i] = play
-        return out
+        return np.array(out) if isinstance(x, np.ndarray) else out

@@ -39,13 +39,15 @@ class RBFNet(nn.Module):
     rbf_inputs
         Indices of the inputs that feed the Gaussians; all when None.
     linear
-        Add a linear term in every (normalised, unclamped) input.
+        Add a linear term in every normalised input (temperature clamped with ``clamp``, the
+        others unclamped).
     temp_degree
         Add powers 2..degree of the (clamped, normalised) temperature input; 0 or 1 for none.
     temp_index
         Which input is temperature.
     clamp
-        Evaluate the Gaussians and the polynomial at inputs clamped to the training box.
+        Evaluate the Gaussians, the polynomial and the linear temperature term at inputs clamped
+        to the training box.
     """
 
     def __init__(self, n_inputs: int, n_outputs: int = 3, n_centers: int = 32, width_init: float = 1.0,
@@ -84,9 +86,19 @@ class RBFNet(nn.Module):
         return functional.softplus(self.raw_width) + self.min_width
 
     def parts(self, x: Tensor) -> Tuple[Tensor, Tensor, Tensor]:
-        """Gaussian activations, normalised inputs and temperature powers 2..degree, each (n, .)."""
+        """Gaussian activations, the linear term's inputs and temperature powers 2..degree, each (n, .).
+
+        The linear term sees the normalised inputs, with temperature clamped to the training box
+        when ``clamp`` is set: outside the trained range every part holds its edge value. The
+        other inputs stay unclamped, so the rate terms carry dT/dt over to heating or cooling
+        the training never saw; at a steady temperature (dT/dt = 0, so T * dT/dt = 0) the whole
+        output holds.
+        """
         z = (x - self.x_mean) / self.x_std
         zc = torch.minimum(torch.maximum(z, self.z_low), self.z_high) if self.clamp else z
+        if self.clamp:
+            t = self.temp_index
+            z = torch.cat([z[:, :t], zc[:, t:t + 1], z[:, t + 1:]], dim=1)
         r = zc.index_select(1, self.rbf_index)
         # phi_k = exp(-|r - c_k|^2 / (2 w_k^2))
         # (broadcast rather than cdist: cdist's backward is slow and its forward no faster here)

@@ -19,12 +19,18 @@ SIGNIFICANT_DIGITS = 13
 
 
 def output_columns(time_s: np.ndarray, temp_c: np.ndarray, out: Compensated) -> dict[str, np.ndarray]:
-    """The columns of a compensated file, shared by the offline and live writers."""
+    """The columns of a compensated file, shared by the offline and live writers.
+
+    ``bad_input`` (int8) marks rows whose temperature or gyro reading was impossible (a glitch kept
+    out of the filters); ``out_of_range`` those outside the trained temperature range.
+    """
     columns = {"time_s": time_s}
     for i, name in enumerate(GYRO_COLUMNS):
         columns[name] = out.rate_dps[:, i]
     columns["temp_c"] = temp_c
     columns["out_of_range"] = out.out_of_range.astype(np.int8)
+    bad_input = np.zeros(len(time_s), dtype=bool) if out.bad_input is None else out.bad_input
+    columns["bad_input"] = bad_input.astype(np.int8)
     return columns
 
 

@@ -87,3 +87,53 @@ def test_px4_polynomial_clamps_to_the_calibrated_range():
     out = model(hot)
     assert_close(out[0], out[1])
     assert_close(out[1], torch.tensor([6.4, 0.4, 0.2], dtype=torch.float64), rtol=0, atol=1e-9)
+
+
+def _hybrid_on_drift_with_a_temperature_slope():
+    """The default model's shape, trained on drift with a linear and a cubic part in temperature."""
+    x, _ = _data()
+    x[:, 2] = x[:, 0] * x[:, 1]
+    y = torch.stack([0.02 * x[:, 0] + 1e-5 * x[:, 0] ** 3 + 8.0 * x[:, 1], 0.01 * x[:, 0], torch.sin(x[:, 0] / 20)], 1)
+    model = RBFNet(3, 3, 8, rbf_inputs=[0], linear=True, temp_degree=3, clamp=True)
+    model.init_from_data(x, y, torch.Generator().manual_seed(0))
+    return model, x
+
+
+def _unclamped_linear_output(model, x):
+    """The output with the linear term on unclamped inputs (the formula before the fix)."""
+    phi, _, powers = model.parts(x)
+    z = (x - model.x_mean) / model.x_std
+    return (model.head(phi) + model.linear(z) + model.poly(powers)) * model.y_std + model.y_mean
+
+
+def test_every_part_holds_its_edge_value_above_and_below_the_trained_range():
+    model, x = _hybrid_on_drift_with_a_temperature_slope()
+    low, high = float(x[:, 0].min()), float(x[:, 0].max())
+    for edge, beyond in ((high, high + 40.0), (low, low - 40.0)):
+        steady = torch.tensor([[edge, 0.0, 0.0], [beyond, 0.0, 0.0]], dtype=torch.float64)
+        with torch.no_grad():
+            out = model(steady)
+            moved_before = (_unclamped_linear_output(model, steady)[1] - out[0]).abs().max()
+        assert moved_before > 0.1  # the linear temperature term alone used to move this far
+        assert_close(out[1], out[0], rtol=0, atol=1e-12)
+
+
+def test_clamping_the_linear_temperature_term_changes_nothing_inside_the_box():
+    model, x = _hybrid_on_drift_with_a_temperature_slope()
+    with torch.no_grad():
+        assert_close(model(x), _unclamped_linear_output(model, x), rtol=0, atol=1e-12)
+        # the rate terms stay linear outside the box: twice the fastest trained rate, twice the effect
+        fast = x[:5].clone()
+        fast[:, 1] = 2 * x[:, 1].abs().max()
+        fast[:, 2] = fast[:, 0] * fast[:, 1]
+        faster = fast.clone()
+        faster[:, 1] *= 2
+        faster[:, 2] = faster[:, 0] * faster[:, 1]
+        slow = fast.clone()
+        slow[:, 1:] = 0.0
+        assert_close(model(faster) - model(slow), 2 * (model(fast) - model(slow)), rtol=1e-9, atol=1e-12)
+        # the scripted model does the same
+        scripted = torch.jit.script(model)
+        beyond = x[:3].clone()
+        beyond[:, 0] += 200.0
+        assert_close(scripted(beyond), model(beyond), rtol=0, atol=1e-12)

@@ -207,7 +207,7 @@ def test_run_stream_stops_on_max_samples_and_ctrl_c(bundle, tmp_path, monkeypatc
     assert summary["faults"] == {"garbage": 1}
     rows = read_output(tmp_path / "live.csv")
     assert len(rows) == summary["n_samples"] == (5 if how == "max_samples" else 20)
-    assert list(rows.columns) == ["time_s", *GYRO_COLUMNS, "temp_c", "out_of_range"]
+    assert list(rows.columns) == ["time_s", *GYRO_COLUMNS, "temp_c", "out_of_range", "bad_input"]
 
 
 # --- issue 10: restarted clocks, re-sent headers, signals, missing ports, a full disk ---------
