@@ -510,7 +510,8 @@ def test_g_sensitivity_is_the_sensors_matrix_times_the_runs_gravity():
     plain = simulate(seed=1, orientation="z_down", **{**common, "sensor": {}})
     assert np.allclose(gyro(z_down, "truth", "drift") - gyro(plain, "truth", "drift"), matrix @ [0, 0, -1])
     assert np.abs(gyro(z_down) - sum(gyro(z_down, "truth", p) for p in ("true_rate", "drift", "noise"))).max() < 1e-12
-    given = simulate(seed=1, orientation="x_up", **{**common, "sensor": {"g_sensitivity_dps_per_g": np.eye(3).tolist()}})
+    identity = {**common, "sensor": {"g_sensitivity_dps_per_g": np.eye(3).tolist()}}
+    given = simulate(seed=1, orientation="x_up", **identity)
     assert np.allclose(gyro(given, "truth", "g_sensitivity"), [1, 0, 0])
     # without a named orientation, the earth spec's orientation is the one that counts
     level = simulate(seed=1, **common)
