@@ -48,6 +48,7 @@ class Compensator:
             self.kalman = KalmanStage.from_dict(kalman)
         self.input_columns = list(dict.fromkeys([*self.extractor.columns, *GYRO_COLUMNS]))
         self.n_out_of_range = 0
+        self.startup = None  # gyronet.startup.StartupOffset: the run's offset from its first still seconds
 
     @classmethod
     def load(cls, bundle_dir: str | Path) -> "Compensator":
@@ -59,7 +60,15 @@ class Compensator:
         self.extractor.reset()
         if self.kalman is not None:
             self.kalman.reset()
+        if self.startup is not None:
+            self.startup.reset()
         self.n_out_of_range = 0
+
+    def use_startup(self, still_s: float = 0.0, motion_dps: float = 0.5, static_rate_dps=(0.0, 0.0, 0.0)) -> None:
+        """Estimate the run's offset over the first ``still_s`` s and apply it from then on (0: off)."""
+        from gyronet.startup import StartupOffset
+
+        self.startup = StartupOffset(still_s, motion_dps, static_rate_dps or (0.0, 0.0, 0.0)) if still_s else None
 
     def check_columns(self, columns: Mapping[str, Any], source: str = "input") -> None:
         """Raise a BundleError naming the columns this bundle needs and ``source`` lacks."""
@@ -80,6 +89,8 @@ class Compensator:
         drift_dps = self.drift(columns)
         gyro_dps = np.column_stack([np.asarray(columns[c], dtype=np.float64) for c in GYRO_COLUMNS])
         rate_dps = gyro_dps - drift_dps
+        if self.startup is not None:
+            rate_dps = self.startup.process(columns["time_s"], rate_dps)
         if self.kalman is not None:
             rate_dps = self.kalman.process(rate_dps)
         temp_c = np.asarray(columns["temp_c"], dtype=np.float64)

@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import logging
 from pathlib import Path
+from typing import Any, Mapping
 
 import numpy as np
 
@@ -39,11 +40,15 @@ def compensate_recording(compensator: Compensator, recording: Recording) -> Comp
     return compensator.process(recording.columns)
 
 
-def compensate_file(bundle_dir: str | Path, input_path: str | Path, output_path: str | Path) -> dict[str, int]:
-    """``compensate.py``: read, compensate, write; return counts for the log."""
+def compensate_file(bundle_dir: str | Path, input_path: str | Path, output_path: str | Path,
+                    startup: Mapping[str, Any] | None = None) -> dict[str, int]:
+    """``compensate.py``: read, compensate, write; return counts for the log. ``startup``: ``use_startup`` options."""
     compensator = Compensator.load(bundle_dir)
+    compensator.use_startup(**dict(startup or {}))
     recording = load_recording(input_path)
     out = compensate_recording(compensator, recording)
+    if compensator.startup is not None:
+        compensator.startup.require_done(str(input_path))
     write_compensated(output_path, output_columns(recording.time_s, recording.temp_c, out), bundle_dir)
     n_oor = int(out.out_of_range.sum())
     if n_oor:

@@ -183,7 +183,7 @@ def run_stream(bundle_dir: str | Path, port: str, output: str | Path, protocol: 
                baud: int = 921600, layout: LpBusLayout | None = None, max_samples: int | None = None,
                duration_s: float | None = None, allan_every_s: float = 60.0, tb_dir: str | Path | None = None,
                summary_path: str | Path | None = None, read_timeout_s: float = 0.05,
-               reconnect: Mapping[str, float | None] | None = None) -> dict:
+               reconnect: Mapping[str, float | None] | None = None, startup: Mapping[str, Any] | None = None) -> dict:
     """``stream.py``: compensate a live stream until told to stop; return the summary.
 
     Parameters
@@ -207,8 +207,11 @@ def run_stream(bundle_dir: str | Path, port: str, output: str | Path, protocol: 
         Serial read timeout, s.
     reconnect
         ``backoff_s``, ``max_backoff_s``, ``give_up_s`` for :func:`read_samples`.
+    startup
+        ``Compensator.use_startup`` options (``still_s``, ``motion_dps``, ``static_rate_dps``).
     """
     compensator = Compensator.load(bundle_dir)
+    compensator.use_startup(**dict(startup or {}))
     compensator.reset()
     parser = make_parser(protocol, layout)
     if protocol == "lpbus":
