@@ -94,7 +94,7 @@ def fit(model: torch.nn.Module, data: DriftData, optim: Callable | None = None, 
     offsets = getattr(data, "offsets", None)  # gyronet.runs.RunOffsets: one constant per training run and axis
     if hasattr(model, "fit_closed_form"):
         model.fit_closed_form(x, y) if offsets is None else offsets.fit_closed_form(model, x, y)
-        pred = model(x) if offsets is None else model(x) + offsets()
+        pred = (model(x) if offsets is None else model(x) + offsets()).detach()
         return {"train/loss": float(torch.mean((pred - y) ** 2)), **validation_metrics(model, data)}
     if offsets is None:
         model.init_from_data(x, y, torch.Generator().manual_seed(seed))
