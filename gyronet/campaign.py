@@ -142,7 +142,7 @@ def held_out_table(paths: Sequence[str], models: Mapping[str, Callable[[int], to
 def to_markdown(table: Mapping[str, Any], reference: str = "poly3") -> str:
     """One row per model and offset variant; per held-out run: x, y, z, their mean, and that mean / the cubic's."""
     runs = list(table["runs"])
-    head = "| model | offset | " + " | ".join(f"{r} x | y | z | mean | /cubic" for r in runs) + " |"
+    head = "| model | offset | " + " | ".join(f"held out {r}: x | y | z | mean | /cubic" for r in runs) + " |"
     lines = [head, "|" + "---|" * (head.count("|") - 1)]
     for row in table["rows"].values():
         ref = table["rows"].get(f"{reference} | {row['offset']}")
@@ -153,9 +153,11 @@ def to_markdown(table: Mapping[str, Any], reference: str = "poly3") -> str:
             cells += [f"{v:.2f}" for v in ratio] + [f"{np.mean(ratio):.2f}", f"{rel:.2f}"]
         lines.append(f"| {row['model']} | {row['offset']} | " + " | ".join(cells) + " |")
     floors = "; ".join(f"{r}: " + " / ".join(f"{v:.4f}" for v in table["floor_dps"][r]) for r in runs)
-    oor = "; ".join(f"{r}: {table['rows'][next(k for k in table['rows'] if k.startswith(reference))]['out_of_range_fraction'][r]:.0%}"
-                    for r in runs if any(k.startswith(reference) for k in table["rows"]))
-    lines += ["", f"Residual / floor per axis (60 s block RMS from {table['score_from_s']:g} s on). Floor (deg/s, "
+    ref_row = table["rows"].get(f"{reference} | none")
+    oor = "; ".join(f"{r}: {ref_row['out_of_range_fraction'][r]:.0%}" for r in runs) if ref_row else ""
+    lines += ["", f"Residual / floor per axis (60 s block RMS from {table['score_from_s']:g} s on), each run held out "
+              f"in turn and the models trained on the others; /cubic: the mean over axes / the PX4 cubic's "
+              f"(same offset). Floor (deg/s, "
               f"x / y / z, Allan deviation at 60 s in the cold dwell): {floors}. Touched 60 s blocks skipped: "
               f"{table['touched_blocks']}. Held-out samples outside the trained temperatures: {oor or 'n/a'}."]
     return "\n".join(lines) + "\n"

@@ -129,7 +129,8 @@ def fit(model: torch.nn.Module, data: DriftData, optim: Callable | None = None, 
                     writer.add_scalar(tag, value, step)
             bar.set_postfix(loss=f"{loss.item():.3g}", val=f"{metrics['val/rmse_dps']:.3g}")
             if metrics["val/rmse_dps"] < best["val/rmse_dps"]:
-                best, best_state, since_best = {**metrics, "train/best_step": step + 1}, copy.deepcopy(model.state_dict()), 0
+                best, best_state, since_best = ({**metrics, "train/best_step": step + 1},
+                                                copy.deepcopy(model.state_dict()), 0)
             else:
                 since_best += eval_every
                 if since_best >= patience:

@@ -1,4 +1,4 @@
-"""The real-data table: python scripts/campaign_table.py 'runs=[A.csv,B.csv]' output=T.md (each run held out in turn)."""
+"""The real-data table, each run held out in turn: python scripts/campaign_table.py 'runs=[A.csv,B.csv]' output=T.md."""
 import json
 import logging
 from pathlib import Path

@@ -11,7 +11,7 @@ from gyronet.data import Recording
 CATS = Path(__file__).resolve().parents[2] / "shared" / "data" / "real" / "cats-tag"
 RUNS = [CATS / "cats_run_z_down.csv.gz", CATS / "cats_run_y_down.csv.gz"]
 needs_cats = pytest.mark.skipif(not all(p.is_file() for p in RUNS),
-                                reason=f"the real cats-tag runs are not at {CATS} (../shared is not part of the repository)")
+                                reason=f"the real cats-tag runs are not at {CATS} (../shared is not in the repository)")
 
 
 def _still(n=7200, seed=0):

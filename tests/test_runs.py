@@ -13,7 +13,8 @@ from gyronet.dataset import featurize
 from gyronet.errors import GyronetError
 from gyronet.features import PAPER_FEATURES
 from gyronet.model import RBFNet
-from gyronet.runs import RunOffsets, RunsData, fit_by_run, load_runs, training_data
+from gyronet.run_offsets import RunOffsets
+from gyronet.runs import RunsData, fit_by_run, load_runs, training_data
 from gyronet.train import fit
 
 from conftest import ROOT

@@ -32,7 +32,8 @@ def diagnose_runs(paths: Sequence[str], data_options: Mapping[str, Any], make_mo
 
     out_dir = Path(out_dir)
     data = training_data(paths=list(paths), **dict(data_options))
-    metrics = train_run(data, make_model(data.n_features), optim, out_dir / "baseline", dict(train_cfg or {}), seed=seed)
+    metrics = train_run(data, make_model(data.n_features), optim, out_dir / "baseline", dict(train_cfg or {}),
+                        seed=seed)
     if (out_dir / "compensator").exists():
         shutil.rmtree(out_dir / "compensator")
     shutil.copytree(out_dir / "baseline" / "compensator", out_dir / "compensator")
