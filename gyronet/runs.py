@@ -199,7 +199,7 @@ def training_data(path: str | None = None, paths: Sequence[str] | None = None, r
         raise GyronetError("no training data: give data.path=F.csv or data.paths=[A.csv,B.csv]")
     if path is not None or len(paths) == 1:
         if run_offsets:
-            log.info("data.run_offsets needs two or more runs: ignored for one recording")
+            log.debug("data.run_offsets needs two or more runs: off for one recording")
         return DriftData(path=str(path if path is not None else paths[0]), **options)
     unknown = {k for k in options if k not in ("features", "block_s", "static_rate_dps", "rate_tau_s",
                                                "val_fraction", "n_blocks", "val_fold", "val_path")}
