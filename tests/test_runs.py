@@ -160,3 +160,28 @@ def test_ga_sweep_takes_several_runs(tmp_path, paper_csv, cycle_csv):
     assert all(i["status"] == "COMPLETED" and np.isfinite(i["fitness"]) for i in individuals)
     assert len(json.loads((sweep / "0" / "report.json").read_text())["folds"]) == 2
     assert len(json.loads((sweep / "best" / "compensator" / "meta.json").read_text())["runs"]) == 2
+
+
+def test_run_offsets_recover_simulated_turn_on_biases(tmp_path):
+    from gyronet.data import load_truth
+    from gyronet.sim import simulate, write_simulation
+
+    paths, biases = [], []
+    for seed in (21, 22, 23):
+        path = tmp_path / f"run{seed}.csv"
+        write_simulation(simulate("paper", fs_hz=0.5, seed=seed, sensor_seed=0, sensor={"turn_on_bias_dps": 0.2}), path)
+        paths.append(str(path))
+        biases.append([load_truth(path).columns[f"turn_on_bias_{a}_dps"][0] for a in "xyz"])
+    biases = np.array(biases)
+    data = training_data(paths=paths, run_offsets=True)
+    fit(RBFNet(3, 3, 12, rbf_inputs=[0], linear=True, temp_degree=3, clamp=True), data, max_epochs=300, progress=False)
+    np.testing.assert_allclose(data.offsets.values().detach().numpy(), biases - biases.mean(0), atol=0.01)
+
+
+def test_the_held_out_run_can_be_scored_as_deployed_with_a_startup_offset(paper_csv, cycle_csv):
+    fold = training_data(paths=[str(paper_csv), str(cycle_csv)], val_startup_s=600).holding_out(1)
+    time_s = fold.val_full[0]
+    residual = np.ones((len(time_s), 3)) * [0.1, -0.2, 0.3]
+    residual[time_s >= time_s[0] + 600] += 0.05
+    adjusted = fold.val_adjust(time_s, residual)
+    np.testing.assert_allclose(adjusted[time_s >= time_s[0] + 600], 0.05)
