@@ -62,6 +62,7 @@ class Compensator:
         self.n_out_of_range = 0
         self.n_bad_input = 0  # rows flagged ``bad_input`` since reset()
         self._last_rate_dps: np.ndarray | None = None  # the last output row: what a bad gyro value becomes
+        self.startup = None  # gyronet.startup.StartupOffset: the run's offset from its first still seconds
 
     @classmethod
     def load(cls, bundle_dir: str | Path) -> "Compensator":
@@ -110,8 +111,16 @@ class Compensator:
         self.extractor.reset()
         if self.kalman is not None:
             self.kalman.reset()
+        if self.startup is not None:
+            self.startup.reset()
         self.n_out_of_range = 0
         self.n_bad_input, self._last_rate_dps = 0, None
+
+    def use_startup(self, still_s: float = 0.0, motion_dps: float = 0.5, static_rate_dps=(0.0, 0.0, 0.0)) -> None:
+        """Estimate the run's offset over the first ``still_s`` s and apply it from then on (0: off)."""
+        from gyronet.startup import StartupOffset
+
+        self.startup = StartupOffset(still_s, motion_dps, static_rate_dps or (0.0, 0.0, 0.0)) if still_s else None
 
     def check_columns(self, columns: Mapping[str, Any], source: str = "input") -> None:
         """Raise a BundleError naming the columns this bundle needs and ``source`` lacks."""
@@ -138,12 +147,18 @@ class Compensator:
         drift_dps = self.drift(columns)
         gyro_dps = np.column_stack([np.asarray(columns[c], dtype=np.float64) for c in GYRO_COLUMNS])
         bad_input = self.extractor.rejected
+        residual_dps = gyro_dps - drift_dps
         # one comparison in the usual case (NaN compares False)
-        if len(gyro_dps) and np.abs(gyro_dps).max() <= GYRO_RANGE_DPS:
-            rate_dps = self._stage(gyro_dps - drift_dps)
+        bad_dps = None if len(gyro_dps) and np.abs(gyro_dps).max() <= GYRO_RANGE_DPS else bad_gyro(gyro_dps)
+        if self.startup is not None:
+            # bad values stay out of the start-up window's mean; _filtered replaces them afterwards
+            valid = None if bad_dps is None else ~bad_dps.any(1)
+            held_dps = residual_dps if bad_dps is None else np.where(bad_dps, 0.0, residual_dps)
+            residual_dps = self.startup.process(columns["time_s"], held_dps, valid)
+        if bad_dps is None:
+            rate_dps = self._stage(residual_dps)
         else:
-            bad_dps = bad_gyro(gyro_dps)
-            rate_dps = self._filtered(gyro_dps - drift_dps, bad_dps)
+            rate_dps = self._filtered(residual_dps, bad_dps)
             bad_input = bad_input | bad_dps.any(1)
         temp_c = np.asarray(columns["temp_c"], dtype=np.float64)
         low, high = self.temp_range_c

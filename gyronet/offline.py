@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import logging
 from pathlib import Path
+from typing import Any, Mapping
 
 import numpy as np
 
@@ -54,13 +55,14 @@ def compensate_recording(compensator: Compensator, recording: Recording) -> Comp
 
 
 def compensate_file(bundle_dir: str | Path, input_path: str | Path, output_path: str | Path,
-                    resample: bool = False) -> dict[str, int]:
+                    resample: bool = False, startup: Mapping[str, Any] | None = None) -> dict[str, int]:
     """``compensate.py``: read, compensate, write; return counts for the log.
 
     A recording whose rate differs from the bundle's ``fs_hz`` by more than 5 % is refused unless
-    ``resample`` (:meth:`Compensator.use_input_rate`).
+    ``resample`` (:meth:`Compensator.use_input_rate`); ``startup``: ``use_startup`` options.
     """
     compensator = Compensator.load(bundle_dir)
+    compensator.use_startup(**dict(startup or {}))
     recording = load_recording(input_path)
     try:
         fs_hz = recording.fs_hz
@@ -68,11 +70,18 @@ def compensate_file(bundle_dir: str | Path, input_path: str | Path, output_path:
         raise RecordingError(f"{recording.path}: '# fs_hz={recording.meta.get('fs_hz')}' is not a rate in Hz") from None
     compensator.use_input_rate(fs_hz, resample, str(recording.path))
     out = compensate_recording(compensator, recording)
+    if compensator.startup is not None:
+        compensator.startup.require_done(str(input_path))
     write_compensated(output_path, output_columns(recording.time_s, recording.temp_c, out), bundle_dir)
     n_oor = int(out.out_of_range.sum())
     if n_oor:
         low, high = compensator.temp_range_c
         log.warning("%d of %d samples outside the trained temperature range [%.2f, %.2f] degC: flagged "
                     "in column out_of_range; the model holds its edge value there", n_oor, len(recording), low, high)
+    n_bad = int(np.count_nonzero(out.bad_input))
+    if n_bad:
+        log.warning("%d of %d samples flagged in column bad_input (a temperature no sensor can read or jump to, or "
+                    "a gyro value that is not finite or beyond the sensor's range): compensated from the last "
+                    "good state", n_bad, len(recording))
     log.info("compensated %d samples (%s) -> %s", len(recording), ", ".join(AXES), output_path)
-    return {"n_samples": len(recording), "n_out_of_range": n_oor}
+    return {"n_samples": len(recording), "n_out_of_range": n_oor, "n_bad_input": n_bad}

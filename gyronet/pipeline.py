@@ -50,8 +50,10 @@ def _meta(model: torch.nn.Module, data: DriftData) -> dict[str, Any]:
     from gyronet.features import required_columns
 
     inputs = list(dict.fromkeys([*required_columns(data.features), *GYRO_COLUMNS]))
-    return build_meta(data.features, data.feature_names, data.fs_hz, data.temp_range_c, inputs,
+    meta = build_meta(data.features, data.feature_names, data.fs_hz, data.temp_range_c, inputs,
                       data.recording.checksum(), model_info(model))
+    meta.update(getattr(data, "bundle_meta", dict)())  # several runs (gyronet.runs): each run, its checksum
+    return meta
 
 
 def evaluate_paths(bundle_dir: Path, paths: Sequence[str], block_s: float) -> dict[str, dict]:
@@ -73,12 +75,20 @@ def train_run(data: DriftData, model: torch.nn.Module, optim: Callable | None, o
     Returns the final metrics; ``val/rmse_dps`` is what a sweep minimises.
     """
     out_dir = Path(out_dir)
-    metrics = fit(model, data, optim, seed=seed, writer=writer, **train_cfg)
+    folds = None
+    if getattr(data, "n_runs", 1) > 1:  # several runs: leave-one-run-out, then the final fit on every run
+        from gyronet.runs import fit_by_run
+
+        metrics, folds = fit_by_run(model, data, optim, seed=seed, writer=writer, **train_cfg)
+    else:
+        metrics = fit(model, data, optim, seed=seed, writer=writer, **train_cfg)
     log.info("validation 60 s RMSE: %s deg/s", ", ".join(f"{a}={metrics[f'val/rmse_{a}_dps']:.4g}" for a in AXES))
     bundle_dir = save_bundle(model, _meta(model, data), out_dir / "compensator", kalman_stage(kalman_cfg, model, data))
     evaluations = evaluate_paths(bundle_dir, eval_paths, eval_block_s)
     report = {"model": model_info(model), "train_path": data.path, "metrics": metrics,
               "eval": {p: {k: v for k, v in r.items() if k != "_arrays"} for p, r in evaluations.items()}}
+    if folds is not None:
+        report.update(train_paths=data.paths, folds=folds)
     for path, result in evaluations.items():
         metrics.update(_eval_metrics(result, prefix="eval" if len(evaluations) == 1 else f"eval_{Path(path).stem}"))
     if writer is not None:

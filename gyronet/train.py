@@ -46,7 +46,10 @@ def validation_metrics(model: torch.nn.Module, data: DriftData, full_rate: bool 
         time_s, x, y = data.val_full
     else:
         time_s, x, y = data.val.time_s, data.val.x, data.val.y
-    rmse = block_rmse(time_s, y - _predict(model, x), 60.0)
+    residual = y - _predict(model, x)
+    if getattr(data, "val_adjust", None) is not None:  # e.g. the held-out run's start-up offset (gyronet.runs)
+        residual = data.val_adjust(time_s, residual)
+    rmse = block_rmse(time_s, residual, 60.0)
     metrics = {f"val/rmse_{a}_dps": float(v) for a, v in zip(AXES, rmse)}
     metrics["val/rmse_dps"] = float(np.mean(rmse))
     return metrics
@@ -54,7 +57,8 @@ def validation_metrics(model: torch.nn.Module, data: DriftData, full_rate: bool 
 
 def fit(model: torch.nn.Module, data: DriftData, optim: Callable | None = None, max_epochs: int = 3000,
         patience: int = 400, eval_every: int = 25, seed: int = 0, weight_decay: float = 0.0,
-        writer: Any = None, progress: bool = True, threads: int | None = 1) -> dict[str, float]:
+        writer: Any = None, progress: bool = True, threads: int | None = 1,
+        stop_at_step: int | None = None) -> dict[str, float]:
     """Fit ``model`` to ``data.train`` and return the final metrics (``val/rmse_dps`` first of all).
 
     Parameters
@@ -78,17 +82,26 @@ def fit(model: torch.nn.Module, data: DriftData, optim: Callable | None = None, 
     threads
         Torch threads. One by default: the problem is a few thousand points, where more threads
         only add overhead; sweeps get their parallelism from jobs running side by side.
+    stop_at_step
+        Train exactly this many steps and keep the last state, without validation (the final fit
+        on every run of a campaign, ``gyronet.runs.fit_by_run``).
     """
     if threads:
         torch.set_num_threads(threads)
     torch.manual_seed(seed)
     x = torch.as_tensor(data.train.x, dtype=torch.float64)
     y = torch.as_tensor(data.train.y, dtype=torch.float64)
+    offsets = getattr(data, "offsets", None)  # gyronet.runs.RunOffsets: one constant per training run and axis
     if hasattr(model, "fit_closed_form"):
-        model.fit_closed_form(x, y)
-        return {"train/loss": float(torch.mean((model(x) - y) ** 2)), **validation_metrics(model, data)}
-    model.init_from_data(x, y, torch.Generator().manual_seed(seed))
-    optimizer = (optim or (lambda p: torch.optim.Adam(p, lr=1e-2)))([p for p in model.parameters() if p.requires_grad])
+        model.fit_closed_form(x, y) if offsets is None else offsets.fit_closed_form(model, x, y)
+        pred = (model(x) if offsets is None else model(x) + offsets()).detach()
+        return {"train/loss": float(torch.mean((pred - y) ** 2)), **validation_metrics(model, data)}
+    if offsets is None:
+        model.init_from_data(x, y, torch.Generator().manual_seed(seed))
+    else:
+        offsets.init_from_data(model, x, y, seed)
+    params = [p for p in model.parameters() if p.requires_grad] + ([] if offsets is None else [offsets.raw])
+    optimizer = (optim or (lambda p: torch.optim.Adam(p, lr=1e-2)))(params)
     base_lrs = [g["lr"] for g in optimizer.param_groups]
     y_norm = (y - model.y_mean) / model.y_std
     best = {"val/rmse_dps": float("inf")}
@@ -99,11 +112,16 @@ def fit(model: torch.nn.Module, data: DriftData, optim: Callable | None = None, 
             group["lr"] = lr_at(step, max_epochs, base)
         optimizer.zero_grad(set_to_none=True)
         # loss on normalised targets, so every axis counts the same
-        loss = torch.mean(((model(x) - model.y_mean) / model.y_std - y_norm) ** 2)
+        pred = model(x) if offsets is None else model(x) + offsets()
+        loss = torch.mean(((pred - model.y_mean) / model.y_std - y_norm) ** 2)
         if weight_decay:
             loss = loss + weight_decay * (model.head.weight.pow(2).sum() + model.poly.weight.pow(2).sum())
         loss.backward()
         optimizer.step()
+        if stop_at_step is not None:  # a fixed budget: no validation run to stop on
+            if step + 1 >= stop_at_step:
+                break
+            continue
         if step % eval_every == 0 or step == max_epochs - 1:
             metrics = {"train/loss": loss.item(), **validation_metrics(model, data, full_rate=False)}
             if writer is not None:
@@ -111,14 +129,18 @@ def fit(model: torch.nn.Module, data: DriftData, optim: Callable | None = None, 
                     writer.add_scalar(tag, value, step)
             bar.set_postfix(loss=f"{loss.item():.3g}", val=f"{metrics['val/rmse_dps']:.3g}")
             if metrics["val/rmse_dps"] < best["val/rmse_dps"]:
-                best, best_state, since_best = metrics, copy.deepcopy(model.state_dict()), 0
+                best, best_state, since_best = ({**metrics, "train/best_step": step + 1},
+                                                copy.deepcopy(model.state_dict()), 0)
             else:
                 since_best += eval_every
                 if since_best >= patience:
                     log.info("early stop at step %d (best val %.4g deg/s)", step, best["val/rmse_dps"])
                     break
+    if stop_at_step is not None:
+        return {"train/loss": loss.item(), "train/steps": step + 1}
     model.load_state_dict(best_state)
-    return {"train/loss": best["train/loss"], "train/steps": step + 1, **validation_metrics(model, data)}
+    return {"train/loss": best["train/loss"], "train/steps": step + 1, "train/best_step": best["train/best_step"],
+            **validation_metrics(model, data)}
 
 
 def residual_report(time_s: np.ndarray, compensated_dps: np.ndarray, truth: Mapping[str, np.ndarray],

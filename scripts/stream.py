@@ -15,7 +15,8 @@ def main(cfg: DictConfig) -> None:
         run_stream(options["model"], options["port"], options["output"], options["protocol"], int(options["baud"]),
                    LpBusLayout(**options["lpbus"]), options["max_samples"], options["duration_s"],
                    float(options["allan_every_s"]), options["tb_dir"], options["summary"],
-                   float(options["read_timeout_s"]), options["reconnect"], options["clock"], stop=stop)
+                   float(options["read_timeout_s"]), options["reconnect"], options["clock"], stop=stop,
+                   startup=options.get("startup"))
 
 
 if __name__ == "__main__":

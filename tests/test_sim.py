@@ -424,3 +424,161 @@ def test_paper_profile_at_10_hz_end_to_end(tmp_path):
     total = sum(np.column_stack([truth.columns[f"{p}_{a}_dps"] for a in AXES])
                 for p in ("true_rate", "drift", "noise"))
     assert np.abs(recording.gyro_dps - total).max() < 1e-8
+
+
+# --- run-level settings: turn-on bias, orientation and g-sensitivity, decimation, sample loss ---
+
+def _digest(sim) -> str:
+    import hashlib
+
+    digest = hashlib.sha256()
+    for table in (sim.recording, sim.truth):
+        for name in sorted(table):
+            digest.update(name.encode())
+            digest.update(np.ascontiguousarray(table[name]).tobytes())
+    digest.update(repr(sorted(sim.meta.items())).encode())
+    return digest.hexdigest()
+
+
+# measured before the run-level settings existed: with them off, nothing moves by a bit
+BEFORE_RUN_SETTINGS = {
+    "cycle": "9b8480fd2e9959f48c2b1d9e082591b83c7c14e0c176defbc474a70d552b743e",
+    "paper_aux_lag2": "63af9015215f1b581de5b77033a43f49ebb1401e4c06f32be42132b7ce5bb9e1",
+}
+RUN_OFF = {"sensor": {"turn_on_bias_dps": 0.0, "g_sensitivity_dps_per_g": 0.0}, "orientation": None,
+           "decimate": 1, "loss": {"fraction": 0.0, "bursts_per_h": 0.0, "burst_s": 10.0}}
+
+
+def test_run_settings_off_leave_the_simulation_bit_for_bit_unchanged():
+    assert _digest(simulate("cycle", fs_hz=0.5, seed=3, sensor_seed=2)) == BEFORE_RUN_SETTINGS["cycle"]
+    assert _digest(simulate("cycle", fs_hz=0.5, seed=3, sensor_seed=2, **RUN_OFF)) == BEFORE_RUN_SETTINGS["cycle"]
+    paper = simulate("paper", fs_hz=1.0, seed=1, sensor_seed=4, effects={"aux": {}, "lag2": {}})
+    assert _digest(paper) == BEFORE_RUN_SETTINGS["paper_aux_lag2"]
+    assert paper.run == {}
+
+
+def test_turn_on_bias_is_a_constant_per_run_seed_apart_from_the_temperature_curve():
+    runs = [simulate("cycle", fs_hz=0.05, seed=s, sensor_seed=3, duration_s=4 * 3600,
+                     sensor={"turn_on_bias_dps": [0.02, 0.05, 0.0]}) for s in range(40)]
+    biases = np.array([r.run["turn_on_bias_dps"] for r in runs])
+    assert np.allclose(biases[:, 2], 0.0)
+    # the standard deviation over runs is the setting (40 draws: within 35 %)
+    assert np.std(biases[:, :2], axis=0) == pytest.approx([0.02, 0.05], rel=0.35)
+    again = simulate("cycle", fs_hz=0.05, seed=7, sensor_seed=3, duration_s=4 * 3600,
+                     sensor={"turn_on_bias_dps": [0.02, 0.05, 0.0]})
+    assert again.run == runs[7].run  # from the run's seed: reproducible
+    plain = simulate("cycle", fs_hz=0.05, seed=7, sensor_seed=3, duration_s=4 * 3600)
+    column = gyro(again, "truth", "turn_on_bias")
+    assert np.all(column == biases[7])
+    # part of the drift, on top of the unchanged temperature curve and noise; the identity holds
+    assert np.allclose(gyro(again, "truth", "drift"), gyro(plain, "truth", "drift") + biases[7], atol=1e-12)
+    assert again.sensor.to_dict() == plain.sensor.to_dict()
+    assert np.array_equal(gyro(again, "truth", "true_rate"), gyro(plain, "truth", "true_rate"))
+    total = sum(gyro(again, "truth", p) for p in ("true_rate", "drift", "noise"))
+    assert np.abs(gyro(again) - total).max() < 1e-12
+    with pytest.raises(GyronetError, match="turn_on_bias_dps must be >= 0"):
+        simulate("constant", 1.0, duration_s=60, sensor={"turn_on_bias_dps": -1.0})
+
+
+@pytest.mark.parametrize("name, axis, sign", [("z_up", 2, 1), ("z_down", 2, -1), ("y_up", 1, 1),
+                                              ("y_down", 1, -1), ("x_up", 0, 1), ("x_down", 0, -1)])
+def test_named_orientation_turns_gravity_and_the_earth_rate(name, axis, sign):
+    sim = simulate("constant", 1.0, duration_s=600, orientation=name, earth={"latitude_deg": 30.0},
+                   accel={"noise_g": 0.0})
+    acc = np.column_stack([sim.recording[f"acc_{a}_g"] for a in AXES])
+    expected = np.zeros(3)
+    expected[axis] = sign
+    assert np.allclose(acc, expected, atol=1e-12)
+    earth = gyro(sim, "truth", "true_rate")[0]
+    assert np.linalg.norm(earth) == pytest.approx(15.041 / 3600)
+    # the Up component of the Earth rate, Omega sin(lat), lies along the Up-pointing axis
+    assert earth[axis] * sign == pytest.approx(15.041 / 3600 * 0.5)
+    assert sim.meta["orientation"] == name and "g_sensitivity_x_dps" not in sim.truth
+
+
+def test_g_sensitivity_is_the_sensors_matrix_times_the_runs_gravity():
+    common = {"profile": "constant", "fs_hz": 1.0, "duration_s": 600, "sensor_seed": 5,
+              "sensor": {"g_sensitivity_dps_per_g": 0.03}}
+    z_down = simulate(seed=1, orientation="z_down", **common)
+    y_down = simulate(seed=2, orientation="y_down", **common)
+    matrix = np.array(z_down.run["g_sensitivity_dps_per_g"])
+    assert matrix.shape == (3, 3) and np.array_equal(matrix, y_down.run["g_sensitivity_dps_per_g"])
+    assert 0.005 < np.std(matrix) < 0.06
+    assert np.allclose(gyro(z_down, "truth", "g_sensitivity"), matrix @ [0, 0, -1])
+    assert np.allclose(gyro(y_down, "truth", "g_sensitivity"), matrix @ [0, -1, 0])
+    # the runs differ by the constant G (f_1 - f_2) on top of the same temperature curve
+    plain = simulate(seed=1, orientation="z_down", **{**common, "sensor": {}})
+    assert np.allclose(gyro(z_down, "truth", "drift") - gyro(plain, "truth", "drift"), matrix @ [0, 0, -1])
+    assert np.abs(gyro(z_down) - sum(gyro(z_down, "truth", p) for p in ("true_rate", "drift", "noise"))).max() < 1e-12
+    identity = {**common, "sensor": {"g_sensitivity_dps_per_g": np.eye(3).tolist()}}
+    given = simulate(seed=1, orientation="x_up", **identity)
+    assert np.allclose(gyro(given, "truth", "g_sensitivity"), [1, 0, 0])
+    # without a named orientation, the earth spec's orientation is the one that counts
+    level = simulate(seed=1, **common)
+    assert np.allclose(gyro(level, "truth", "g_sensitivity"), matrix @ [0, 0, 1])
+    with pytest.raises(GyronetError, match="unknown orientation"):
+        simulate(seed=1, orientation="upside", **common)
+    with pytest.raises(GyronetError, match="give one of them"):
+        simulate(seed=1, orientation="z_down", earth={"orientation_deg": [10, 0, 0]}, **common)
+
+
+def test_decimation_averages_every_column_like_a_resampled_recording(tmp_path):
+    fast = simulate("cycle", fs_hz=2.0, seed=4, duration_s=2 * 3600 + 1.0, sensor={"turn_on_bias_dps": 0.01})
+    slow = simulate("cycle", fs_hz=2.0, seed=4, duration_s=2 * 3600 + 1.0, sensor={"turn_on_bias_dps": 0.01},
+                    decimate=4)
+    assert len(fast.recording["time_s"]) == 14402 and len(slow.recording["time_s"]) == 3600
+    assert slow.meta["fs_hz"] == "0.5" and slow.meta["decimated_from_hz"] == "2"
+    for table in ("recording", "truth"):
+        for name, values in getattr(fast, table).items():
+            expected = values[:14400].reshape(-1, 4).mean(axis=1)
+            assert np.allclose(getattr(slow, table)[name], expected, rtol=0, atol=1e-12), name
+    assert np.allclose(np.diff(slow.recording["time_s"]), 2.0)
+    total = sum(gyro(slow, "truth", p) for p in ("true_rate", "drift", "noise"))
+    assert np.abs(gyro(slow) - total).max() < 1e-12
+    # white noise averaged over 4 samples: 1/2 the per-sample deviation, the same ARW
+    assert np.std(gyro(slow, "truth", "noise"), axis=0) / np.std(gyro(fast, "truth", "noise"), axis=0) \
+        == pytest.approx([0.5] * 3, rel=0.1)
+    write_simulation(slow, tmp_path / "slow.csv")
+    assert load_recording(tmp_path / "slow.csv").fs_hz == pytest.approx(0.5)
+    with pytest.raises(GyronetError, match="decimate must be"):
+        simulate("constant", 1.0, duration_s=60, decimate=0)
+
+
+def test_sample_loss_drops_the_same_rows_from_recording_and_truth(tmp_path):
+    common = {"profile": "constant", "fs_hz": 1.0, "duration_s": 20 * 3600, "seed": 3}
+    whole = simulate(**common)
+    lossy = simulate(loss={"fraction": 0.02, "bursts_per_h": 1.0, "burst_s": 60.0}, **common)
+    time_s = lossy.recording["time_s"]
+    assert np.array_equal(time_s, lossy.truth["time_s"])
+    assert time_s[0] == whole.recording["time_s"][0] and time_s[-1] == whole.recording["time_s"][-1]
+    kept = np.isin(whole.recording["time_s"], time_s)
+    for table in ("recording", "truth"):
+        for name, values in getattr(lossy, table).items():
+            assert np.array_equal(values, getattr(whole, table)[name][kept]), name
+    lost = 1 - kept.mean()
+    # 2 % single rows, plus about 20 bursts of 60 s (1.7 %)
+    assert 0.025 < lost < 0.06
+    gaps = np.diff(time_s)
+    assert gaps.max() > 20 and np.sum(gaps > 10) >= 8
+    assert np.isclose(np.mean(gaps == 2.0), 0.02 * 0.98, atol=0.005)  # single lost rows
+    write_simulation(lossy, tmp_path / "lossy.csv")
+    loaded = load_recording(tmp_path / "lossy.csv")  # gaps are allowed: a break in the record
+    assert len(loaded) == len(time_s) and loaded.fs_hz == pytest.approx(1.0)
+    assert np.abs(load_truth(tmp_path / "lossy.csv").columns["drift_x_dps"] - lossy.truth["drift_x_dps"]).max() < 1e-8
+    with pytest.raises(GyronetError, match="unknown loss option"):
+        simulate("constant", 1.0, duration_s=60, loss={"rate": 0.1})
+    with pytest.raises(GyronetError, match="loss needs"):
+        simulate("constant", 1.0, duration_s=60, loss={"fraction": 1.5})
+
+
+def test_script_passes_the_run_settings_through(tmp_path):
+    out = tmp_path / "run.csv"
+    done = _run_script(f"output={out}", "profile=constant", "duration_s=200", "fs_hz=10", "decimate=10",
+                       "orientation=y_down", "+sensor.turn_on_bias_dps=0.05",
+                       "+sensor.g_sensitivity_dps_per_g=0.02", "loss.fraction=0.05", cwd=tmp_path)
+    assert done.returncode == 0, done.stderr
+    recording, truth = load_recording(out), load_truth(out)
+    assert recording.meta["orientation"] == "y_down" and recording.meta["fs_hz"] == "1"
+    assert 150 < len(recording) < 200 and np.allclose(recording.columns["acc_y_g"].mean(), -1, atol=0.01)
+    assert "turn_on_bias_x_dps" in truth.columns and "g_sensitivity_z_dps" in truth.columns
+    assert "run" in truth.meta and "run" not in recording.meta

@@ -244,6 +244,18 @@ def diagnose(data_options: Mapping[str, Any], make_model: Callable[[int], torch.
     """
     started = time.monotonic()
     out_dir = Path(out_dir)
+    # data.paths: several runs (gyronet.diagnose.runs); one in a list is the one-record case
+    paths = list(data_options.get("paths") or [])
+    runs_options = {k: data_options[k] for k in ("run_offsets", "val_startup_s") if k in data_options}
+    data_options = {k: v for k, v in data_options.items() if k not in ("paths", "run_offsets", "val_startup_s")}
+    if len(paths) > 1 or (paths and data_options.get("path")):
+        from gyronet.diagnose.runs import diagnose_runs
+
+        return diagnose_runs(paths, {**data_options, **runs_options}, make_model, out_dir, optim, train_cfg, seed)
+    if paths:
+        data_options["path"] = paths[0]
+    if not data_options.get("path"):
+        raise GyronetError("no training data: give data.path=F.csv or data.paths=[A.csv,B.csv]")
     if not isinstance(options, DiagnoseOptions):
         options = DiagnoseOptions(**dict(options or {}))
     if 1 / (options.n_shifts + 1) > options.alpha:

@@ -19,8 +19,13 @@ The model, in the order it is computed:
 5. **True rate**: the Earth rate (15.041 deg/h at a latitude and orientation) plus optional
    rate steps.
 
+6. **Run** (:mod:`.run`, all off by default): a turn-on bias drawn per run ``seed``, the
+   fixture's orientation (which axis is along gravity) and a g-sensitivity matrix of the sensor,
+   averaging to a lower rate (``decimate``) and lost rows (``loss``).
+
 ``gyro = true_rate + drift + noise`` holds per sample, with the quantisation error counted in the
-noise.
+noise; the turn-on bias and the g-sensitivity term are part of the drift (and in their own truth
+columns too).
 """
 from gyronet.sim.core import (AccelSpec, EarthSpec, Simulation, TemperatureSpec, rate_steps_dps,
                               simulate, write_simulation)
@@ -28,12 +33,14 @@ from gyronet.sim.effects import EFFECTS, apply_effect, play_operator
 from gyronet.sim.noise import (NoiseSpec, earth_rate_dps, flicker_rate_noise_dps, gravity_g,
                                gyro_noise_dps, quantise, rate_random_walk_dps, white_rate_noise_dps)
 from gyronet.sim.profiles import PROFILES, chamber_profile
+from gyronet.sim.run import ORIENTATIONS_DEG, decimate_columns, g_sensitivity_matrix, loss_mask, turn_on_bias_dps
 from gyronet.sim.sensor import SensorModel, draw_sensor, first_order_lag
 
 __all__ = [
-    "AccelSpec", "EFFECTS", "EarthSpec", "NoiseSpec", "PROFILES", "SensorModel", "Simulation",
-    "TemperatureSpec", "apply_effect", "chamber_profile", "draw_sensor", "earth_rate_dps",
-    "first_order_lag", "flicker_rate_noise_dps", "gravity_g", "gyro_noise_dps", "play_operator",
-    "quantise", "rate_random_walk_dps", "rate_steps_dps", "simulate", "white_rate_noise_dps",
-    "write_simulation",
+    "AccelSpec", "EFFECTS", "EarthSpec", "NoiseSpec", "ORIENTATIONS_DEG", "PROFILES", "SensorModel",
+    "Simulation", "TemperatureSpec", "apply_effect", "chamber_profile", "decimate_columns",
+    "draw_sensor", "earth_rate_dps", "first_order_lag", "flicker_rate_noise_dps",
+    "g_sensitivity_matrix", "gravity_g", "gyro_noise_dps", "loss_mask", "play_operator", "quantise",
+    "rate_random_walk_dps", "rate_steps_dps", "simulate", "turn_on_bias_dps",
+    "white_rate_noise_dps", "write_simulation",
 ]

@@ -17,6 +17,7 @@ from gyronet.fastcsv import write_csv
 from gyronet.sim.effects import apply_effect
 from gyronet.sim.noise import NoiseSpec, earth_rate_dps, gravity_g, gyro_noise_dps, quantise
 from gyronet.sim.profiles import chamber_profile
+from gyronet.sim.run import decimate_columns, g_sensitivity_matrix, lose_rows, orientation_deg, turn_on_bias_dps
 from gyronet.sim.sensor import N_AXES, SensorModel, draw_sensor, per_axis
 
 log = logging.getLogger(__name__)
@@ -91,7 +92,9 @@ class Simulation:
     truth
         ``time_s``, ``die_temp_c``, ``chamber_temp_c``, ``drift_{x,y,z}_dps`` (all deterministic
         drift, effects included), ``noise_{x,y,z}_dps`` (what was added, quantisation included),
-        ``true_rate_{x,y,z}_dps`` (Earth rate and rate steps) and ``effect_<name>_{x,y,z}_dps``.
+        ``true_rate_{x,y,z}_dps`` (Earth rate and rate steps), ``effect_<name>_{x,y,z}_dps``, and
+        when on, ``turn_on_bias_{x,y,z}_dps`` and ``g_sensitivity_{x,y,z}_dps`` (parts of the
+        drift that no temperature model can predict, see :mod:`gyronet.sim.run`).
         ``gyro = true_rate + drift + noise`` per axis.
     meta
         The ``# key=value`` lines of the recording.
@@ -99,6 +102,9 @@ class Simulation:
         The drawn sensor coefficients.
     effects
         Names of the effects switched on, in the order applied.
+    run
+        The run-level draws that are on (:mod:`gyronet.sim.run`): ``turn_on_bias_dps`` (3,),
+        ``g_sensitivity_dps_per_g`` (3x3); written to the truth's metadata, never the recording's.
     """
 
     recording: dict[str, np.ndarray]
@@ -106,6 +112,7 @@ class Simulation:
     meta: dict[str, str]
     sensor: SensorModel
     effects: list[str] = field(default_factory=list)
+    run: dict[str, Any] = field(default_factory=dict)
 
 
 Spec = TypeVar("Spec")
@@ -150,7 +157,9 @@ def simulate(profile: str = "paper", fs_hz: float = 10.0, seed: int = 0, sensor_
              earth: EarthSpec | Mapping[str, Any] | None = None,
              accel: AccelSpec | Mapping[str, Any] | None = None,
              rate_steps: Sequence[Mapping[str, Any]] | None = None,
-             effects: Mapping[str, Mapping[str, Any] | None] | None = None) -> Simulation:
+             effects: Mapping[str, Mapping[str, Any] | None] | None = None,
+             orientation: str | None = None, decimate: int = 1,
+             loss: Mapping[str, Any] | None = None) -> Simulation:
     """Simulate a static three-axis MEMS gyro in a thermal chamber.
 
     Parameters
@@ -172,12 +181,16 @@ def simulate(profile: str = "paper", fs_hz: float = 10.0, seed: int = 0, sensor_
         :class:`NoiseSpec`, :class:`TemperatureSpec`, :class:`EarthSpec`, :class:`AccelSpec` or a
         mapping of their fields.
     sensor
-        Overrides of the drawn sensor (``swing_dps`` or any :class:`SensorModel` field).
+        Overrides of the drawn sensor (``swing_dps`` or any :class:`SensorModel` field), and the
+        run-level ``turn_on_bias_dps`` and ``g_sensitivity_dps_per_g`` of :mod:`gyronet.sim.run`.
     rate_steps
         True rotation steps, see :func:`rate_steps_dps`.
     effects
         ``{name: {params}}`` of :mod:`gyronet.sim.effects`; a None value or ``enabled: false``
         leaves the effect off.
+    orientation, decimate, loss
+        Which axis is along gravity, averaging of ``decimate`` samples into one, and lost rows;
+        see :mod:`gyronet.sim.run` (all off by default).
 
     Returns
     -------
@@ -190,7 +203,10 @@ def simulate(profile: str = "paper", fs_hz: float = 10.0, seed: int = 0, sensor_
     time_s, chamber_c = chamber_profile(profile, fs_hz, np.random.default_rng([int(seed), 1]),
                                         duration_s=duration_s, **dict(profile_options or {}))
     n = len(time_s)
-    model = draw_sensor(sensor_seed, **dict(sensor or {}))
+    sensor = dict(sensor or {})
+    bias_std_dps = sensor.pop("turn_on_bias_dps", 0.0)
+    g_sensitivity = g_sensitivity_matrix(sensor_seed, sensor.pop("g_sensitivity_dps_per_g", 0.0))
+    model = draw_sensor(sensor_seed, **sensor)
     die_c = model.die_temperature_c(time_s, chamber_c, fs_hz)
     die_rate_c_per_s = np.gradient(die_c, time_s)
     temp_rng = np.random.default_rng([int(seed), 2])
@@ -213,7 +229,16 @@ def simulate(profile: str = "paper", fs_hz: float = 10.0, seed: int = 0, sensor_
         aux_columns.update(out.columns)
         applied.append(name)
 
-    earth_dps = earth_rate_dps(earth_spec.latitude_deg, earth_spec.orientation_deg, earth_spec.rate_deg_hr)
+    run_parts: dict[str, np.ndarray] = {}
+    turned_deg = orientation_deg(orientation, earth_spec.orientation_deg)
+    if np.any(per_axis(bias_std_dps, "sensor.turn_on_bias_dps") != 0):
+        run_parts["turn_on_bias"] = np.broadcast_to(turn_on_bias_dps(seed, bias_std_dps), (n, N_AXES))
+    if np.any(g_sensitivity != 0):
+        # drift += G f, f the specific force of this orientation (g)
+        run_parts["g_sensitivity"] = np.broadcast_to(g_sensitivity @ gravity_g(turned_deg), (n, N_AXES))
+    for part in run_parts.values():
+        drift = drift + part
+    earth_dps = earth_rate_dps(earth_spec.latitude_deg, turned_deg, earth_spec.rate_deg_hr)
     true_rate = earth_dps[None, :] + rate_steps_dps(time_s, rate_steps)
     ideal = true_rate + drift
     gyro = quantise(ideal + gyro_noise_dps(n, fs_hz, noise_spec, seed), noise_spec.lsb_dps)
@@ -222,14 +247,19 @@ def simulate(profile: str = "paper", fs_hz: float = 10.0, seed: int = 0, sensor_
     recording = {"time_s": time_s, "temp_c": temp_c, **_columns("gyro", gyro)}
     if accel_spec.enabled:
         acc_rng = np.random.default_rng([int(seed), 4])
-        acc = gravity_g(earth_spec.orientation_deg)[None, :] \
+        acc = gravity_g(turned_deg)[None, :] \
             + accel_spec.noise_g * acc_rng.standard_normal((n, N_AXES))
         recording.update(_columns("acc", quantise(acc, accel_spec.lsb_g), suffix="_g"))
     recording.update(aux_columns)
     truth = {"time_s": time_s, "die_temp_c": die_c, "chamber_temp_c": chamber_c,
              **_columns("drift", drift), **_columns("noise", added_noise),
              **_columns("true_rate", true_rate), **truth_effects}
-    meta = {"fs_hz": f"{fs_hz:g}", "sensor": SENSOR_NAME, "seed": str(seed),
+    for name, part in run_parts.items():
+        truth.update(_columns(name, np.array(part)))
+    recording, truth = decimate_columns(recording, decimate), decimate_columns(truth, decimate)
+    out_fs_hz = fs_hz / int(decimate)
+    recording, truth = lose_rows(recording, truth, out_fs_hz, seed, loss)
+    meta = {"fs_hz": f"{out_fs_hz:g}", "sensor": SENSOR_NAME, "seed": str(seed),
             "sensor_seed": str(sensor_seed), "profile": profile,
             "effects": ",".join(applied) or "none",
             "arw_deg_rthr": _triple(noise_spec.arw_deg_rthr),
@@ -238,9 +268,16 @@ def simulate(profile: str = "paper", fs_hz: float = 10.0, seed: int = 0, sensor_
             # the true rate of the static test (the Earth's), which training subtracts: a user
             # writes it from the latitude and the mounting, as here
             "static_rate_dps": ",".join(f"{v:.9g}" for v in earth_dps)}
-    log.info("simulated %d samples (%.2f h, profile %s, effects %s)", n, n / fs_hz / 3600, profile,
-             meta["effects"])
-    return Simulation(recording, truth, meta, model, applied)
+    if orientation is not None:
+        meta["orientation"] = orientation
+    if int(decimate) != 1:
+        meta["decimated_from_hz"] = f"{fs_hz:g}"
+    log.info("simulated %d samples (%.2f h, profile %s, effects %s)", len(recording["time_s"]),
+             n / fs_hz / 3600, profile, meta["effects"])
+    run = {"turn_on_bias_dps": run_parts["turn_on_bias"][0].tolist()} if "turn_on_bias" in run_parts else {}
+    if "g_sensitivity" in run_parts:
+        run["g_sensitivity_dps_per_g"] = g_sensitivity.tolist()
+    return Simulation(recording, truth, meta, model, applied, run)
 
 
 def _triple(value: Any) -> str:
@@ -267,6 +304,8 @@ def write_simulation(sim: Simulation, path: str | os.PathLike, fast: bool = True
     """
     writer = write_csv if fast else write_recording
     truth_meta = {**sim.meta, "truth": "1", "sensor_model": json.dumps(sim.sensor.to_dict())}
+    if sim.run:
+        truth_meta["run"] = json.dumps(sim.run)
     recording = writer(path, sim.recording, sim.meta)
     truth = writer(truth_path(path), sim.truth, truth_meta)
     log.info("wrote %s and %s", recording, truth)

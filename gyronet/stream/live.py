@@ -41,7 +41,8 @@ def run_stream(bundle_dir: str | Path, port: str, output: str | Path, protocol: 
                summary_path: str | Path | None = None, read_timeout_s: float = 0.05,
                reconnect: Mapping[str, float | bool | None] | None = None,
                clock: Mapping[str, float | None] | None = None,
-               stop: Callable[[], bool] | None = None) -> dict:
+               stop: Callable[[], bool] | None = None,
+               startup: Mapping[str, Any] | None = None) -> dict:
     """``stream.py``: compensate a live stream until told to stop; return the summary.
 
     Parameters
@@ -72,6 +73,8 @@ def run_stream(bundle_dir: str | Path, port: str, output: str | Path, protocol: 
         restarted sensor clock.
     stop
         Polled between reads; True stops the run as Ctrl-C does (``stop_on_signals``).
+    startup
+        ``Compensator.use_startup`` options (``still_s``, ``motion_dps``, ``static_rate_dps``).
 
     Raises
     ------
@@ -84,6 +87,7 @@ def run_stream(bundle_dir: str | Path, port: str, output: str | Path, protocol: 
     options = dict(reconnect or {})
     wait_at_start = bool(options.pop("wait_at_start", False))
     compensator = Compensator.load(bundle_dir)
+    compensator.use_startup(**dict(startup or {}))
     compensator.reset()
     check = SampleCheck(**dict(clock or {}))
     parser = make_parser(protocol, layout, required=compensator.input_columns, check=check)

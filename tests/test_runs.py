@@ -1,0 +1,187 @@
+"""Several runs in one training: per-run features and blocks, leave-one-run-out, run offsets, the bundle's runs."""
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+import torch
+
+from gyronet.baselines import LinearFeatures, TempPolynomial
+from gyronet.data import load_recording
+from gyronet.dataset import featurize
+from gyronet.errors import GyronetError
+from gyronet.features import PAPER_FEATURES
+from gyronet.model import RBFNet
+from gyronet.run_offsets import RunOffsets
+from gyronet.runs import RunsData, fit_by_run, load_runs, training_data
+from gyronet.train import fit
+
+from conftest import ROOT
+
+
+def _two_runs_data(**kw):
+    """Three synthetic runs sharing one cubic in temperature, each with its own constant offset."""
+    rng = np.random.default_rng(0)
+    offsets = np.array([[0.05, -0.02, 0.01], [-0.03, 0.04, 0.0], [-0.02, -0.02, -0.01]])
+    x, y, run = [], [], []
+    for k, (low, high) in enumerate([(-10, 30), (0, 40), (-20, 20)]):
+        temp = np.linspace(low, high, 400)
+        curve = np.column_stack([0.002 * temp, -1e-4 * temp**2, 3e-6 * temp**3])
+        x.append(np.column_stack([temp, rng.normal(0, 1e-3, 400), rng.normal(0, 1e-2, 400)]))
+        y.append(curve + offsets[k] + rng.normal(0, 1e-4, (400, 3)))
+        run.append(np.full(400, k))
+    return np.vstack(x), np.vstack(y), np.concatenate(run), offsets
+
+
+@pytest.mark.parametrize("make", [lambda: TempPolynomial(3), lambda: LinearFeatures(3)])
+def test_closed_form_offsets_equal_the_joint_fit_with_dummy_columns(make):
+    x, y, run, true_offsets = _two_runs_data()
+    xt, yt = torch.as_tensor(x), torch.as_tensor(y)
+    model, offsets = make(), RunOffsets(run, 3)
+    offsets.fit_closed_form(model, xt, yt)
+    values = offsets.values().detach().numpy()
+    np.testing.assert_allclose(values.sum(0), 0, atol=1e-12)
+    # the same least squares with the dummy columns written out
+    basis = model._powers(xt).numpy() if isinstance(model, TempPolynomial) else np.column_stack([x, np.ones(len(x))])
+    dummies = np.eye(3)[run][:, 1:]
+    coef = np.linalg.lstsq(np.column_stack([basis, dummies]), y, rcond=None)[0]
+    joint = np.vstack([np.zeros((1, 3)), coef[-2:]])
+    np.testing.assert_allclose(values, joint - joint.mean(0), atol=1e-9)
+    fitted = model(xt).numpy() + values[run]
+    np.testing.assert_allclose(fitted, np.column_stack([basis, dummies]) @ coef, atol=1e-9)
+    if isinstance(model, TempPolynomial):  # the cubic is the truth: the offsets come out as drawn
+        np.testing.assert_allclose(values, true_offsets - true_offsets.mean(0), atol=2e-4)
+
+
+def test_rbf_offsets_are_learnt_by_adam_with_the_model():
+    x, y, run, true_offsets = _two_runs_data()
+
+    class Data:  # the parts of a RunsData that fit reads
+        pass
+
+    data = Data()
+    from gyronet.dataset import Blocks
+
+    data.train = Blocks(x, y, np.arange(len(x)) * 10.0)
+    data.val = data.train
+    data.val_full = (data.train.time_s, x, y)
+    data.offsets = RunOffsets(run, 3)
+    model = RBFNet(3, 3, 8, rbf_inputs=[0], linear=True, temp_degree=3, clamp=True)
+    fit(model, data, max_epochs=200, progress=False)
+    np.testing.assert_allclose(data.offsets.values().detach().numpy(), true_offsets - true_offsets.mean(0), atol=3e-3)
+
+
+def test_features_are_per_run_and_blocks_never_span_runs(paper_csv, cycle_csv):
+    runs = load_runs([str(paper_csv), str(cycle_csv)], PAPER_FEATURES)
+    fresh = featurize(load_recording(cycle_csv), PAPER_FEATURES)
+    np.testing.assert_array_equal(runs[1].features, fresh)  # a fresh extractor, not continued from run 0
+    data = RunsData(runs, list(PAPER_FEATURES))
+    per_run = [len(r.blocks(10.0)) for r in runs]
+    assert len(data.train) == sum(per_run)
+    assert np.array_equal(np.bincount(data.train.run), per_run)
+    low = min(r.recording.temp_c.min() for r in runs)
+    high = max(r.recording.temp_c.max() for r in runs)
+    assert data.temp_range_c == (low, high)
+    fold = data.holding_out(0)
+    assert [r.name for r in fold.train_runs] == ["cycle"] and len(fold.val_full[0]) == len(runs[0].time_s)
+    assert fold.temp_range_c == runs[1].temp_range_c
+
+
+def test_training_data_one_or_several_and_clear_errors(paper_csv, cycle_csv):
+    assert type(training_data(path=str(paper_csv))).__name__ == "DriftData"
+    assert type(training_data(paths=[str(paper_csv)])).__name__ == "DriftData"
+    with pytest.raises(GyronetError, match="not both"):
+        training_data(path=str(paper_csv), paths=[str(cycle_csv)])
+    with pytest.raises(GyronetError, match="no training data"):
+        training_data()
+    with pytest.raises(GyronetError, match="val_path"):
+        training_data(paths=[str(paper_csv), str(cycle_csv)], val_path=str(cycle_csv))
+    with pytest.raises(GyronetError, match="twice"):
+        training_data(paths=[str(paper_csv), str(paper_csv)])
+
+
+def test_leave_one_run_out_scores_each_run_and_trains_the_final_model_on_all(paper_csv, cycle_csv):
+    data = training_data(paths=[str(paper_csv), str(cycle_csv)])
+    model = RBFNet(3, 3, 8, rbf_inputs=[0], linear=True, temp_degree=3, clamp=True)
+    metrics, folds = fit_by_run(model, data, max_epochs=120, progress=False)
+    assert [f["held_out"] for f in folds] == ["paper", "cycle"]
+    assert metrics["val/rmse_dps"] == pytest.approx(np.mean([f["val/rmse_dps"] for f in folds]))
+    assert metrics["train/steps"] == int(np.median([f["train/best_step"] for f in folds]))
+    # the final model saw both runs: its training box is the union
+    assert model.z_low[0] * model.x_std[0] + model.x_mean[0] == pytest.approx(data.train.x[:, 0].min())
+
+
+def _script(script, tmp_path, *overrides):
+    cmd = [sys.executable, f"scripts/{script}", *overrides, f"hydra.run.dir={tmp_path}", "train.progress=false"]
+    return subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True)
+
+
+def test_train_script_on_two_runs_writes_every_run_and_every_fold(tmp_path, paper_csv, cycle_csv):
+    proc = _script("train.py", tmp_path, f"data.paths=[{paper_csv},{cycle_csv}]", "train.max_epochs=60",
+                   "data.run_offsets=true", "model=poly3")
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    report = json.loads((tmp_path / "report.json").read_text())
+    meta = json.loads((tmp_path / "compensator" / "meta.json").read_text())
+    assert [f["held_out"] for f in report["folds"]] == ["paper", "cycle"]
+    assert report["train_paths"] == [str(paper_csv), str(cycle_csv)]
+    for run, path in zip(meta["runs"], (paper_csv, cycle_csv)):
+        recording = load_recording(path)
+        assert run["path"] == str(path) and run["sha256"] == recording.checksum()
+        assert run["n_samples"] == len(recording)
+        assert run["temp_range_c"] == [recording.temp_c.min(), recording.temp_c.max()]
+    assert len(meta["data_sha256"]) == 64 and set(meta["run_offsets_dps"]) == {"paper", "cycle"}
+    assert meta["temp_range_c"] == [min(r["temp_range_c"][0] for r in meta["runs"]),
+                                    max(r["temp_range_c"][1] for r in meta["runs"])]
+
+
+def test_path_and_paths_together_is_an_error(tmp_path, paper_csv, cycle_csv):
+    proc = _script("train.py", tmp_path, f"data.path={paper_csv}", f"data.paths=[{cycle_csv}]")
+    assert proc.returncode != 0 and "not both" in proc.stderr
+
+
+def test_diagnose_accepts_several_runs(tmp_path, paper_csv, cycle_csv):
+    proc = _script("diagnose.py", tmp_path, f"data.paths=[{paper_csv},{cycle_csv}]", "train.max_epochs=40")
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    diagnosis = json.loads((tmp_path / "diagnosis.json").read_text())
+    assert diagnosis["effects"] == [] and len(diagnosis["runs"]) == 2 and "issue #12" in diagnosis["note"]
+    assert (tmp_path / "compensator" / "meta.json").is_file() and (tmp_path / "baseline" / "compensator").is_dir()
+
+
+def test_ga_sweep_takes_several_runs(tmp_path, paper_csv, cycle_csv):
+    sweep = tmp_path / "sweep"
+    cmd = [sys.executable, "scripts/train.py", "-m", "hydra/sweeper=ga", f"data.paths=[{paper_csv},{cycle_csv}]",
+           f"hydra.sweep.dir={sweep}", "hydra.sweeper.population_size=2", "hydra.sweeper.generations=1",
+           "train.max_epochs=30", "train.progress=false"]
+    proc = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    history = json.loads((sweep / "ga_history.json").read_text())
+    individuals = history["generations"][0]["individuals"]
+    assert all(i["status"] == "COMPLETED" and np.isfinite(i["fitness"]) for i in individuals)
+    assert len(json.loads((sweep / "0" / "report.json").read_text())["folds"]) == 2
+    assert len(json.loads((sweep / "best" / "compensator" / "meta.json").read_text())["runs"]) == 2
+
+
+def test_run_offsets_recover_simulated_turn_on_biases(tmp_path):
+    from gyronet.data import load_truth
+    from gyronet.sim import simulate, write_simulation
+
+    paths, biases = [], []
+    for seed in (21, 22, 23):
+        path = tmp_path / f"run{seed}.csv"
+        write_simulation(simulate("paper", fs_hz=0.5, seed=seed, sensor_seed=0, sensor={"turn_on_bias_dps": 0.2}), path)
+        paths.append(str(path))
+        biases.append([load_truth(path).columns[f"turn_on_bias_{a}_dps"][0] for a in "xyz"])
+    biases = np.array(biases)
+    data = training_data(paths=paths, run_offsets=True)
+    fit(RBFNet(3, 3, 12, rbf_inputs=[0], linear=True, temp_degree=3, clamp=True), data, max_epochs=300, progress=False)
+    np.testing.assert_allclose(data.offsets.values().detach().numpy(), biases - biases.mean(0), atol=0.01)
+
+
+def test_the_held_out_run_can_be_scored_as_deployed_with_a_startup_offset(paper_csv, cycle_csv):
+    fold = training_data(paths=[str(paper_csv), str(cycle_csv)], val_startup_s=600).holding_out(1)
+    time_s = fold.val_full[0]
+    residual = np.ones((len(time_s), 3)) * [0.1, -0.2, 0.3]
+    residual[time_s >= time_s[0] + 600] += 0.05
+    adjusted = fold.val_adjust(time_s, residual)
+    np.testing.assert_allclose(adjusted[time_s >= time_s[0] + 600], 0.05)

@@ -1,0 +1,156 @@
+"""Start-up offsets: the run's turn-on bias from its first still seconds, offline and live alike."""
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from gyronet.compensator import Compensator
+from gyronet.data import load_recording, load_truth
+from gyronet.errors import GyronetError
+from gyronet.sim import simulate, write_simulation
+from gyronet.startup import StartupMotionError, StartupOffset
+
+from conftest import FAST_FS_HZ, ROOT
+
+
+@pytest.fixture(scope="module")
+def biased_csv(tmp_path_factory):
+    """The cycle history of the bundle's sensor, with a turn-on bias of its own (0.2 deg/s per axis std)."""
+    path = tmp_path_factory.mktemp("sim") / "biased.csv"
+    write_simulation(simulate("cycle", fs_hz=FAST_FS_HZ, seed=5, sensor_seed=0,
+                              sensor={"turn_on_bias_dps": 0.2}), path)
+    return path
+
+
+def test_the_window_mean_is_removed_after_the_window_and_only_after():
+    rng = np.random.default_rng(0)
+    time_s = np.arange(1000.0)
+    rate = rng.normal(0, 0.1, (1000, 3)) + [0.3, -0.2, 0.05]
+    startup = StartupOffset(still_s=300)
+    out = startup.process(time_s, rate)
+    np.testing.assert_array_equal(out[:300], rate[:300])
+    np.testing.assert_allclose(out[300:], rate[300:] - rate[:300].mean(0), atol=1e-12)
+    assert startup.done
+
+
+def test_one_call_equals_one_call_per_sample_with_a_bundle(bundle, biased_csv):
+    recording = load_recording(biased_csv)
+    whole = Compensator.load(bundle)
+    whole.use_startup(still_s=120)
+    batch = whole.process(recording.columns).rate_dps
+    live = Compensator.load(bundle)
+    live.use_startup(still_s=120)
+    rows = [live.process({k: v[i:i + 1] for k, v in recording.columns.items()}).rate_dps for i in range(600)]
+    np.testing.assert_allclose(np.vstack(rows), batch[:600], rtol=0, atol=1e-12)
+    live.reset()  # a new stream starts a new window
+    assert not live.startup.done
+
+
+def test_the_offset_removes_a_turn_on_bias(bundle, biased_csv):
+    recording = load_recording(biased_csv)
+    truth = load_truth(biased_csv).columns
+    bias = np.column_stack([truth[f"turn_on_bias_{a}_dps"] for a in "xyz"])[0]
+    assert np.max(np.abs(bias)) > 0.05
+    comp = Compensator.load(bundle)
+    plain = comp.process(recording.columns).rate_dps
+    comp.use_startup(still_s=300)
+    comp.reset()
+    with_offset = comp.process(recording.columns).rate_dps
+    after = recording.time_s >= recording.time_s[0] + 300
+    true_rate = np.column_stack([truth[f"true_rate_{a}_dps"] for a in "xyz"])
+    err_plain = np.abs((plain - true_rate)[after].mean(0))
+    err_offset = np.abs((with_offset - true_rate)[after].mean(0))
+    assert np.all(err_offset < 0.5 * err_plain), (err_plain, err_offset)
+    np.testing.assert_allclose(comp.startup.offset_dps, bias, atol=0.05)
+
+
+def test_motion_in_the_window_is_refused():
+    rng = np.random.default_rng(1)
+    time_s = np.arange(600.0)
+    rate = rng.normal(0, 0.12, (600, 3))
+    rate[100:105, 2] += 3.0  # someone turns the sensor for 5 s
+    with pytest.raises(StartupMotionError, match="z rate departs"):
+        StartupOffset(still_s=300).process(time_s, rate)
+    # a still window at the same noise passes, and a slow 0.3 deg/s wobble below the bound too
+    rate[100:105, 2] -= 3.0
+    rate[200:210, 0] += 0.3
+    StartupOffset(still_s=300).process(time_s, rate)
+
+
+def test_a_short_record_and_bad_settings_are_user_errors():
+    startup = StartupOffset(still_s=300)
+    startup.process(np.arange(10.0), np.zeros((10, 3)))
+    with pytest.raises(GyronetError, match="shorter than startup.still_s"):
+        startup.require_done("f.csv")
+    for bad in (-1.0, float("nan")):
+        with pytest.raises(GyronetError, match="still_s"):
+            StartupOffset(still_s=bad)
+
+
+def _compensate(bundle, csv, out, *overrides):
+    return subprocess.run([sys.executable, "scripts/compensate.py", f"model={bundle}", f"input={csv}", f"output={out}",
+                           *overrides], cwd=ROOT, capture_output=True, text=True)
+
+
+def test_compensate_script_takes_startup_and_refuses_motion_in_one_line(bundle, biased_csv, tmp_path):
+    out = tmp_path / "o.csv"
+    proc = _compensate(bundle, biased_csv, out, "startup.still_s=300")
+    assert proc.returncode == 0, proc.stderr
+    recording = load_recording(biased_csv)
+    comp = Compensator.load(bundle)
+    comp.use_startup(still_s=300)
+    expected = comp.process(recording.columns).rate_dps
+    written = load_recording(out, required=("time_s", "gyro_x_dps")).gyro_dps
+    np.testing.assert_allclose(written, expected, rtol=1e-11, atol=1e-12)
+    # the same file with a turn in its first minute
+    moved = dict(recording.columns)
+    moved["gyro_y_dps"] = moved["gyro_y_dps"].copy()
+    moved["gyro_y_dps"][20:30] += 20.0
+    from gyronet.data import write_recording
+
+    moved_csv = tmp_path / "moved.csv"
+    write_recording(moved_csv, moved, recording.meta)
+    proc = _compensate(bundle, moved_csv, out, "startup.still_s=300")
+    assert proc.returncode == 2
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and "motion in the start-up window" in lines[0], proc.stderr
+
+
+def test_live_stream_with_startup_equals_offline(bundle, biased_csv, tmp_path):
+    """stream.py's loop (in-process, over a pty) with startup.still_s gives the offline numbers."""
+    import threading
+
+    import pandas as pd
+
+    from gyronet.data import GYRO_COLUMNS, write_recording
+    from gyronet.stream import FaultPlan, plan_stream
+    from gyronet.stream.live import run_stream
+    from gyronet.stream.pty_sensor import PtySensor, play
+
+    recording = load_recording(biased_csv).slice(slice(0, 300))
+    short = write_recording(tmp_path / "short.csv", recording.columns, recording.meta)
+    plan = plan_stream(recording.columns, "csv", FaultPlan(seed=1))
+    link = tmp_path / "sensor"
+    sensor = PtySensor(link)
+
+    def emulate():
+        try:
+            play(plan, sensor, speed=0, reader_timeout_s=20, port_down_s=0.2)
+        finally:
+            sensor.close()
+            sensor.remove_link()
+
+    thread = threading.Thread(target=emulate, daemon=True)
+    thread.start()
+    run_stream(bundle, str(link), tmp_path / "live.csv", protocol="csv", allan_every_s=0,
+               reconnect={"backoff_s": 0.05, "max_backoff_s": 0.2, "give_up_s": 0.5},
+               startup={"still_s": 60, "motion_dps": 0.5})
+    thread.join(10)
+    live = pd.read_csv(tmp_path / "live.csv", comment="#")
+    comp = Compensator.load(bundle)
+    comp.use_startup(still_s=60)
+    offline = comp.process(load_recording(short).columns).rate_dps
+    assert len(live) == len(offline)
+    np.testing.assert_allclose(live[list(GYRO_COLUMNS)].to_numpy(), offline, rtol=0, atol=1e-9)
+    assert comp.startup.done
