@@ -144,6 +144,8 @@ HUGE_LINES = {
     "distinct": lambda: ",".join(f"c{i}" for i in range(900_000)),  # 6 MB, no newline
     "same": lambda: "a," * 3_000_000,  # one name 3 M times
     "with_required": lambda: HEADER + "," + ",".join(f"aux{i}_v" for i in range(700_000)) + "\n0,1,2,3,4\n",
+    "data_line": lambda: HEADER + "\n" + "1," * 3_000_000 + "\n",  # pandas made a column of every cell
+    "empty_cells": lambda: HEADER + "\n0,1,2,3,4" + "," * 3_000_000 + "\n",
 }
 
 
