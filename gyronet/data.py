@@ -5,7 +5,6 @@ row. Every numeric column is kept; the ones gyronet does not know are auxiliary 
 """
 from __future__ import annotations
 
-import csv
 import hashlib
 import io
 import logging
@@ -17,6 +16,7 @@ from typing import Iterable, Mapping, Sequence
 import numpy as np
 import pandas as pd
 
+from gyronet.csvtable import parse_table
 from gyronet.errors import RecordingError
 
 log = logging.getLogger(__name__)
@@ -26,6 +26,10 @@ GYRO_COLUMNS = tuple(f"gyro_{a}_dps" for a in AXES)
 REQUIRED_COLUMNS = ("time_s", "temp_c") + GYRO_COLUMNS
 ALLAN_COLUMNS = ("time_s",) + GYRO_COLUMNS
 TRUTH_SUFFIX = ".truth.csv"
+# a declared ``# fs_hz`` may differ this much from the median sample interval (clock tolerance)
+FS_TOLERANCE = 0.05
+# an interval this many times the median one is a break in the record, not jitter
+BREAK_FACTOR = 5.0
 
 
 @dataclass
@@ -35,6 +39,8 @@ class Recording:
     columns: dict[str, np.ndarray]
     meta: dict[str, str] = field(default_factory=dict)
     path: str | None = None
+    lines: np.ndarray | None = None  # the file line of each row, when loaded from a CSV
+    dropped: dict[str, str] = field(default_factory=dict)  # auxiliary columns not loaded, and why
 
     def __len__(self) -> int:
         return len(self.time_s)
@@ -59,10 +65,26 @@ class Recording:
 
     @property
     def fs_hz(self) -> float:
-        """Sampling rate from the ``fs_hz`` metadata, else from the median sample interval."""
-        if "fs_hz" in self.meta:
-            return float(self.meta["fs_hz"])
-        return float(1.0 / np.median(np.diff(self.time_s))) if len(self) > 1 else float("nan")
+        """Sampling rate from the ``fs_hz`` metadata, else from the median sample interval.
+
+        A declared rate must be a positive number within ``FS_TOLERANCE`` of the median interval's:
+        a wrong one would scale every rate feature silently.
+        """
+        measured = float(1.0 / np.median(np.diff(self.time_s))) if len(self) > 1 else float("nan")
+        if "fs_hz" not in self.meta:
+            return measured
+        text = str(self.meta["fs_hz"])
+        try:
+            declared = float(text)
+        except ValueError:
+            declared = float("nan")
+        if not (np.isfinite(declared) and declared > 0):
+            raise RecordingError(f"{self.path}: # fs_hz={text[:40]} is not a positive number of Hz")
+        if np.isfinite(measured) and abs(declared - measured) > FS_TOLERANCE * measured:
+            raise RecordingError(f"{self.path}: # fs_hz={text[:40]} disagrees with the samples (median "
+                                 f"interval {1.0 / measured:.6g} s, i.e. {measured:.6g} Hz); correct or "
+                                 "remove the fs_hz line")
+        return declared
 
     def checksum(self) -> str:
         """sha256 of the numeric content, so a bundle can name the data it was trained on."""
@@ -74,52 +96,34 @@ class Recording:
 
     def slice(self, index: slice | np.ndarray) -> "Recording":
         """A sub-recording (a time block), sharing metadata."""
-        return Recording({k: v[index] for k, v in self.columns.items()}, dict(self.meta), self.path)
+        lines = None if self.lines is None else self.lines[index]
+        return Recording({k: v[index] for k, v in self.columns.items()}, dict(self.meta), self.path, lines,
+                         dict(self.dropped))
+
+    def line_of(self, row: int) -> str:
+        """How an error names a row: its file line when known."""
+        return f"line {self.lines[row]}" if self.lines is not None else f"row {row + 1}"
 
 
-def _read_preamble(path: Path) -> tuple[dict[str, str], int, list[str]]:
-    """Read the ``#`` metadata lines and the header; return meta, header line number, names."""
-    meta: dict[str, str] = {}
-    opener = _open_text(path)
-    with opener as handle:
-        for line_no, line in enumerate(handle, start=1):
-            if "\x00" in line:
-                raise RecordingError(f"{path}: not a CSV file (binary content on line {line_no})")
-            stripped = line.strip().lstrip("\ufeff")
-            if not stripped:
-                continue
-            if stripped.startswith("#"):
-                key, sep, value = stripped[1:].partition("=")
-                if sep:
-                    meta[key.strip()] = value.strip()
-                continue
-            names = [n.strip() for n in next(csv.reader([stripped]))]
-            return meta, line_no, names
-    raise RecordingError(f"{path}: empty file (no header row)")
-
-
-def _open_text(path: Path):
-    if path.suffix == ".gz":
-        import gzip
-
-        return gzip.open(path, "rt", encoding="utf-8", errors="strict")
-    return open(path, "r", encoding="utf-8", errors="strict", newline="")
-
-
-def load_recording(path: str | os.PathLike, required: Sequence[str] = REQUIRED_COLUMNS) -> Recording:
+def load_recording(path: str | os.PathLike, required: Sequence[str] = REQUIRED_COLUMNS, *,
+                   delimiter: str | None = ",", decimal: str | None = ".") -> Recording:
     """Load and validate a recording.
 
     Parameters
     ----------
     path
-        CSV file (``.csv`` or ``.csv.gz``).
+        CSV file, plain or gzip-compressed (``.csv``, ``.csv.gz``); UTF-8, or UTF-16 with a BOM.
     required
-        Columns that must be present; by default those of CONTRACT.md section 1.
+        Columns that must be finite numbers in every row; by default those of CONTRACT.md
+        section 1. Another column that is not (text, an empty cell, NaN) is dropped with a warning
+        and named in ``Recording.dropped``.
+    delimiter, decimal
+        The contract's ``,`` and ``.``; None sniffs them (``;``, tab, decimal commas), for import.
 
     Returns
     -------
     Recording
-        All numeric columns as float64 arrays of equal length.
+        All usable numeric columns as float64 arrays of equal length.
 
     Raises
     ------
@@ -129,84 +133,19 @@ def load_recording(path: str | os.PathLike, required: Sequence[str] = REQUIRED_C
     path = Path(path)
     if not path.is_file():
         raise RecordingError(f"{path}: no such file")
-    try:
-        meta, header_line, names = _read_preamble(path)
-    except UnicodeDecodeError:
-        raise RecordingError(f"{path}: not a CSV file (not UTF-8 text)") from None
-    _check_header(path, names, required)
-    try:
-        frame = pd.read_csv(path, skiprows=header_line - 1, comment=None, dtype=np.float64,
-                            skip_blank_lines=True, encoding="utf-8-sig")
-    except ValueError as err:  # a non-numeric cell, or a malformed row
-        frame = _read_as_text(path, header_line, err)
-        _raise_first_bad_cell(path, frame, header_line)
-        raise  # pragma: no cover - _raise_first_bad_cell always raises for a text frame
-    frame.columns = names
-    if frame.empty:
-        raise RecordingError(f"{path}: no samples after the header")
-    columns = {name: frame[name].to_numpy(dtype=np.float64, copy=False) for name in names}
-    _check_finite(path, columns, header_line)
-    _check_time(path, columns["time_s"], header_line)
-    return Recording(columns, meta, str(path))
+    table = parse_table(path, tuple(dict.fromkeys(("time_s", *required))), delimiter, decimal)
+    _check_time(path, table.columns["time_s"], table.lines)
+    recording = Recording(table.columns, table.meta, str(path), table.lines, table.dropped)
+    if "fs_hz" in recording.meta:
+        recording.fs_hz  # noqa: B018 - refuses a declared rate that is not the recording's
+    return recording
 
 
-def _check_header(path: Path, names: list[str], required: Sequence[str]) -> None:
-    if len(names) < 2:
-        raise RecordingError(f"{path}: not a CSV recording (first line {','.join(names)[:60]!r} has no commas)")
-    duplicates = sorted({n for n in names if names.count(n) > 1})
-    if duplicates:
-        raise RecordingError(f"{path}: duplicate column {duplicates[0]!r} in the header")
-    if "" in names:
-        raise RecordingError(f"{path}: column {names.index('') + 1} of the header has no name")
-    missing = [c for c in required if c not in names]
-    if missing:
-        raise RecordingError(f"{path}: missing required column(s) {', '.join(missing)}"
-                             f" (header has {', '.join(names)})")
-
-
-def _read_as_text(path: Path, header_line: int, err: Exception) -> pd.DataFrame:
-    """Re-read as strings to find where a fast numeric parse failed."""
-    try:
-        return pd.read_csv(path, skiprows=header_line - 1, dtype=str, keep_default_na=False,
-                           encoding="utf-8-sig")
-    except pd.errors.ParserError as parse_err:
-        # pandas says "Expected 8 fields in line 12, saw 9"; its line counts from the header.
-        text = str(parse_err).strip().splitlines()[-1]
-        raise RecordingError(f"{path}: malformed row ({text}, counting from the header)") from None
-    except ValueError:
-        raise RecordingError(f"{path}: not a CSV recording ({err})") from None
-
-
-def _raise_first_bad_cell(path: Path, frame: pd.DataFrame, header_line: int) -> None:
-    first: tuple[int, str, str] | None = None
-    for name in frame.columns:
-        text = frame[name].astype(str).str.strip()
-        numeric = pd.to_numeric(text, errors="coerce")
-        bad = np.flatnonzero(numeric.isna().to_numpy() & (text != "").to_numpy()
-                             & ~text.str.lower().isin(["nan", "inf", "-inf", "+inf"]).to_numpy())
-        if bad.size and (first is None or bad[0] < first[0]):
-            first = (int(bad[0]), str(name), text.iloc[bad[0]])
-    if first is None:
-        raise RecordingError(f"{path}: could not parse the file as numeric CSV")
-    row, name, value = first
-    raise RecordingError(f"{path}: line {header_line + 1 + row}: column {name!r}: "
-                         f"non-numeric value {value[:40]!r}")
-
-
-def _check_finite(path: Path, columns: Mapping[str, np.ndarray], header_line: int) -> None:
-    for name, values in columns.items():
-        bad = np.flatnonzero(~np.isfinite(values))
-        if bad.size:
-            what = "empty cell or NaN" if np.isnan(values[bad[0]]) else "infinite value"
-            raise RecordingError(f"{path}: line {header_line + 1 + int(bad[0])}: column {name!r}: {what}"
-                                 f" ({bad.size} such cell(s) in this column)")
-
-
-def _check_time(path: Path, time_s: np.ndarray, header_line: int) -> None:
+def _check_time(path: Path, time_s: np.ndarray, lines: np.ndarray) -> None:
     bad = np.flatnonzero(np.diff(time_s) <= 0)
     if bad.size:
         row = int(bad[0]) + 1
-        raise RecordingError(f"{path}: line {header_line + 1 + row}: time_s {float(time_s[row])!r} does not "
+        raise RecordingError(f"{path}: line {lines[row]}: time_s {float(time_s[row])!r} does not "
                              f"increase (previous {float(time_s[row - 1])!r})")
 
 
@@ -241,23 +180,55 @@ def time_blocks(time_s: np.ndarray, block_s: float) -> np.ndarray:
     return np.floor((time_s - time_s[0]) / block_s).astype(np.int64)
 
 
+def gap_blocks(time_s: np.ndarray, block_s: float) -> np.ndarray:
+    """Index of the ``block_s`` time block of each sample; the grid restarts after every gap longer
+    than a block, so that a block never straddles a break in the record and the samples after one
+    fill whole blocks."""
+    time_s = np.asarray(time_s, dtype=np.float64)
+    if len(time_s) == 0:
+        return np.empty(0, dtype=np.int64)
+    segment = np.concatenate([[0], np.cumsum(np.diff(time_s) > block_s)])
+    starts = np.flatnonzero(np.diff(np.concatenate([[-1], segment])))
+    local = np.floor((time_s - time_s[starts][segment]) / block_s).astype(np.int64)
+    # number the blocks of each segment after those of the segments before it
+    offsets = np.concatenate([[0], np.cumsum(np.maximum.reduceat(local, starts) + 1)[:-1]])
+    return offsets[segment] + local
+
+
 def block_means(values: np.ndarray, time_s: np.ndarray, block_s: float = 60.0,
                 min_fill: float = 0.5) -> np.ndarray:
     """Average ``values`` (n,) or (n, k) over ``block_s`` time blocks; drop blocks under ``min_fill`` full.
 
     Used for the contract's residual metric (60 s blocks) and to decimate training data, since the
-    thermal drift has no content a 60 s average would hide.
+    thermal drift has no content a 60 s average would hide. Blocks restart after a gap longer than
+    a block (``gap_blocks``); a block that a shorter gap cuts is averaged over the samples it has.
+    Empty input gives an empty result of the same trailing shape.
     """
     values = np.asarray(values, dtype=np.float64)
-    flat = values.reshape(len(values), -1)
-    block = time_blocks(time_s, block_s)
+    tail = values.shape[1:]
+    if len(values) == 0:
+        return np.empty((0,) + tail)
+    flat = values.reshape(len(values), int(np.prod(tail, dtype=np.int64)))
+    block = gap_blocks(time_s, block_s)
     counts = np.bincount(block)
     sums = np.stack([np.bincount(block, weights=flat[:, j], minlength=len(counts))
                      for j in range(flat.shape[1])], axis=1)
-    expected = max(1.0, np.median(counts[counts > 0]))
+    expected = max(1.0, float(np.median(counts[counts > 0])))
     keep = counts >= min_fill * expected
     means = sums[keep] / counts[keep, None]
-    return means.reshape((-1,) + values.shape[1:])
+    return means.reshape((-1,) + tail)
+
+
+def recorded_time_s(time_s: np.ndarray) -> np.ndarray:
+    """Time since the first sample with every break (an interval over ``BREAK_FACTOR`` median
+    intervals) shortened to one median interval; equal to ``time_s - time_s[0]`` without breaks."""
+    time_s = np.asarray(time_s, dtype=np.float64)
+    if len(time_s) < 2:
+        return np.zeros(len(time_s))
+    step_s = np.diff(time_s)
+    median_s = float(np.median(step_s))
+    removed_s = np.where(step_s > BREAK_FACTOR * median_s, step_s - median_s, 0.0)
+    return time_s - time_s[0] - np.concatenate([[0.0], np.cumsum(removed_s)])
 
 
 def fold_count(val_fraction: float) -> int:
@@ -269,7 +240,9 @@ def split_by_time(time_s: np.ndarray, val_fraction: float = 0.2, n_blocks: int =
                   fold: int | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Train and validation masks from contiguous time blocks, never random samples.
 
-    The record is cut into ``n_blocks`` equal spans of time and every k-th span (k = 1 /
+    The record is cut into ``n_blocks`` equal spans of recorded time (a break longer than
+    ``BREAK_FACTOR`` sample intervals counts as one interval, so that no span falls in a break and
+    comes out empty) and every k-th span (k = 1 /
     ``val_fraction``), starting with span ``fold`` (default: the centre offset, k // 2), is held
     out, so that validation covers the whole temperature history; folds 0 .. k-1 together hold
     out every span once (cross-validation).
@@ -281,8 +254,11 @@ def split_by_time(time_s: np.ndarray, val_fraction: float = 0.2, n_blocks: int =
     """
     if not 0.0 < val_fraction < 1.0:
         raise ValueError(f"val_fraction must be in (0, 1), got {val_fraction}")
-    span_s = (time_s[-1] - time_s[0]) / n_blocks * (1 + 1e-12)
-    block = time_blocks(time_s, span_s)
+    recorded_s = recorded_time_s(time_s)
+    if len(time_s) < 2 or recorded_s[-1] <= 0:
+        return np.ones(len(time_s), dtype=bool), np.zeros(len(time_s), dtype=bool)
+    span_s = recorded_s[-1] / n_blocks * (1 + 1e-12)
+    block = np.floor(recorded_s / span_s).astype(np.int64)
     step = fold_count(val_fraction)
     val = (block % step) == (step // 2 if fold is None else fold % step)
     return ~val, val

@@ -18,11 +18,20 @@ from pathlib import Path
 
 import numpy as np
 
-from gyronet.data import AXES, Recording, block_means, load_recording, split_by_time, time_blocks
-from gyronet.errors import GyronetError
+from gyronet.data import AXES, GYRO_COLUMNS, Recording, block_means, load_recording, split_by_time, time_blocks
+from gyronet.errors import GyronetError, RecordingError
 from gyronet.features import PAPER_FEATURES, FeatureExtractor, required_columns
 
 log = logging.getLogger(__name__)
+
+# beyond these a sample is no reading of a real sensor: a corrupt line, not data to fit
+RATE_LIMIT_DPS = 1.0e4  # the widest MEMS gyro ranges are +-4000 deg/s
+TEMP_LIMITS_C = (-80.0, 200.0)
+# a record must vary this much in temperature to fit a drift on it, degC
+MIN_TEMP_SPAN_C = 1.0
+# and give at least this many averaging blocks to fit on and to validate on
+MIN_TRAIN_BLOCKS = 10
+MIN_VAL_BLOCKS = 2
 
 
 def static_rate_dps(recording: Recording, override: Sequence[float] | None = None) -> np.ndarray:
@@ -78,11 +87,31 @@ def _features_by_key(key: tuple[str, int, int], specs_json: str, fs_hz: float) -
     return features
 
 
+def check_physical(recording: Recording) -> None:
+    """Refuse a recording with a rate or temperature no real sensor gives (a corrupt line), naming the line."""
+    limits = {c: (-RATE_LIMIT_DPS, RATE_LIMIT_DPS, "deg/s") for c in GYRO_COLUMNS}
+    limits["temp_c"] = (*TEMP_LIMITS_C, "degC")
+    for name, (low, high, unit) in limits.items():
+        values = recording.columns[name]
+        bad = np.flatnonzero((values < low) | (values > high))
+        if bad.size:
+            raise RecordingError(f"{recording.path}: {recording.line_of(int(bad[0]))}: {name} = "
+                                 f"{float(values[bad[0]]):.6g} {unit} is outside any sensor's range "
+                                 f"({low:g} .. {high:g}); {bad.size} such sample(s): fix or remove those lines")
+
+
+def check_features_present(recording: Recording, specs: Sequence[Mapping[str, Any]]) -> None:
+    """The columns the features read must be in the recording: say why when the loader dropped one."""
+    for name in required_columns(specs):
+        if name not in recording.columns:
+            why = recording.dropped.get(name)
+            raise GyronetError(f"{recording.path}: the features need column {name!r}, "
+                               + (f"which is not usable ({why})" if why else "which the recording lacks"))
+
+
 def featurize(recording: Recording, specs: Sequence[Mapping[str, Any]], fs_hz: float | None = None) -> np.ndarray:
     """Causal features of a whole recording at its full rate, shape (n, len(specs))."""
-    missing = [c for c in required_columns(specs) if c not in recording.columns]
-    if missing:
-        raise GyronetError(f"{recording.path}: the features need column(s) {', '.join(missing)}")
+    check_features_present(recording, specs)
     extractor = FeatureExtractor(specs, fs_hz or recording.fs_hz)
     return extractor.process(recording.columns)
 
@@ -133,12 +162,13 @@ class DriftData:
                 if spec["kind"] == "rate":
                     spec["tau_s"] = float(self.rate_tau_s)
         self.recording = load_cached(self.path)
+        val_rec = load_cached(self.val_path) if self.val_path else None
+        self._check(self.recording, val_rec)  # before any work
         self.fs_hz = self.recording.fs_hz
         self.static_rate = static_rate_dps(self.recording, self.static_rate_dps)
         full_x, full_y = self._full_rate(self.path)
         time_s = self.recording.time_s
-        if self.val_path:
-            val_rec = load_cached(self.val_path)
+        if val_rec is not None:
             val_x, val_y = self._full_rate(self.val_path)
             self.train = to_blocks(time_s, full_x, full_y, self.block_s)
             self.val = to_blocks(val_rec.time_s, val_x, val_y, self.block_s)
@@ -152,9 +182,35 @@ class DriftData:
         self.temp_range_c = (float(self.recording.temp_c.min()), float(self.recording.temp_c.max()))
         log.info("training data %s: %d samples at %.3g Hz, %d train / %d validation blocks of %g s",
                  self.path, len(self.recording), self.fs_hz, len(self.train), len(self.val), self.block_s)
-        if len(self.train) < 10 or len(self.val) < 2:
-            raise GyronetError(f"{self.path}: too short to train on ({len(self.train)} training and "
-                               f"{len(self.val)} validation blocks of {self.block_s} s)")
+
+    def _check(self, recording: Recording, val_rec: Recording | None) -> None:
+        """Refuse, in one line, a record that cannot be trained on: impossible values, too little
+        temperature range, too few blocks; from the time stamps alone, before any feature work."""
+        for rec in (recording, val_rec):
+            if rec is not None:
+                check_physical(rec)
+                check_features_present(rec, self.features)
+        time_s = recording.time_s
+        if val_rec is not None:
+            n_train, n_val = len(block_means(time_s, time_s, self.block_s)), len(
+                block_means(val_rec.time_s, val_rec.time_s, self.block_s))
+        else:
+            train, val = split_by_time(time_s, self.val_fraction, self.n_blocks, self.val_fold)
+            n_train = len(block_means(time_s[train], time_s[train], self.block_s))
+            n_val = len(block_means(time_s[val], time_s[val], self.block_s))
+        if val_rec is not None and n_val < MIN_VAL_BLOCKS and n_train >= MIN_TRAIN_BLOCKS:
+            raise GyronetError(f"{self.val_path}: too short to validate on ({n_val} blocks of {self.block_s:g} s; "
+                               f"at least {MIN_VAL_BLOCKS} are needed)")
+        if n_train < MIN_TRAIN_BLOCKS or n_val < MIN_VAL_BLOCKS:
+            raise GyronetError(f"{self.path}: too short to train on ({len(recording)} samples over "
+                               f"{float(time_s[-1] - time_s[0]):.6g} s: {n_train} training and {n_val} "
+                               f"validation blocks of {self.block_s:g} s; at least {MIN_TRAIN_BLOCKS} and "
+                               f"{MIN_VAL_BLOCKS} are needed)")
+        span_c = float(np.ptp(recording.temp_c))
+        if span_c < MIN_TEMP_SPAN_C:
+            raise GyronetError(f"{self.path}: the temperature spans {span_c:.3g} degC "
+                               f"({float(recording.temp_c.min()):.6g} .. {float(recording.temp_c.max()):.6g}); "
+                               f"a drift model needs at least {MIN_TEMP_SPAN_C:g} degC of range")
 
     def _full_rate(self, path: str) -> tuple[np.ndarray, np.ndarray]:
         """Features and targets at the full rate, computed once per process for a given file."""
@@ -189,4 +245,5 @@ def block_rmse(time_s: np.ndarray, residual: np.ndarray, block_s: float = 60.0) 
     return np.sqrt(np.mean(means**2, axis=0))
 
 
-__all__ = ["Blocks", "DriftData", "block_rmse", "featurize", "static_rate_dps", "to_blocks", "time_blocks"]
+__all__ = ["Blocks", "DriftData", "block_rmse", "check_features_present", "check_physical", "featurize",
+           "static_rate_dps", "to_blocks", "time_blocks"]

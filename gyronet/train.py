@@ -16,6 +16,7 @@ from tqdm.auto import tqdm
 
 from gyronet.data import AXES
 from gyronet.dataset import DriftData, block_rmse
+from gyronet.errors import GyronetError
 
 log = logging.getLogger(__name__)
 
@@ -95,7 +96,9 @@ def fit(model: torch.nn.Module, data: DriftData, optim: Callable | None = None, 
     if hasattr(model, "fit_closed_form"):
         model.fit_closed_form(x, y) if offsets is None else offsets.fit_closed_form(model, x, y)
         pred = (model(x) if offsets is None else model(x) + offsets()).detach()
-        return {"train/loss": float(torch.mean((pred - y) ** 2)), **validation_metrics(model, data)}
+        metrics = {"train/loss": float(torch.mean((pred - y) ** 2)), **validation_metrics(model, data)}
+        _check_finite(metrics, "the closed-form fit")
+        return metrics
     if offsets is None:
         model.init_from_data(x, y, torch.Generator().manual_seed(seed))
     else:
@@ -116,6 +119,9 @@ def fit(model: torch.nn.Module, data: DriftData, optim: Callable | None = None, 
         loss = torch.mean(((pred - model.y_mean) / model.y_std - y_norm) ** 2)
         if weight_decay:
             loss = loss + weight_decay * (model.head.weight.pow(2).sum() + model.poly.weight.pow(2).sum())
+        if not torch.isfinite(loss):
+            raise GyronetError(f"training diverged at step {step}: the loss is {loss.item()} (lower optim.lr, "
+                               "or check the recording for extreme values)")
         loss.backward()
         optimizer.step()
         if stop_at_step is not None:  # a fixed budget: no validation run to stop on
@@ -137,10 +143,23 @@ def fit(model: torch.nn.Module, data: DriftData, optim: Callable | None = None, 
                     log.info("early stop at step %d (best val %.4g deg/s)", step, best["val/rmse_dps"])
                     break
     if stop_at_step is not None:
-        return {"train/loss": loss.item(), "train/steps": step + 1}
+        final = {"train/loss": loss.item(), "train/steps": step + 1}
+        _check_finite(final, "the trained model")
+        return final
+    if "train/loss" not in best:  # the validation error was never a finite number
+        raise GyronetError(f"training gave no finite validation error in {step + 1} steps (last "
+                           f"val/rmse_dps {metrics['val/rmse_dps']}); check the validation recording")
     model.load_state_dict(best_state)
-    return {"train/loss": best["train/loss"], "train/steps": step + 1, "train/best_step": best["train/best_step"],
-            **validation_metrics(model, data)}
+    final = {"train/loss": best["train/loss"], "train/steps": step + 1, "train/best_step": best["train/best_step"],
+             **validation_metrics(model, data)}
+    _check_finite(final, "the trained model")
+    return final
+
+
+def _check_finite(metrics: Mapping[str, float], what: str) -> None:
+    bad = sorted(k for k, v in metrics.items() if not math.isfinite(v))
+    if bad:
+        raise GyronetError(f"{what} gives non-finite {', '.join(bad)} ({metrics[bad[0]]}): the fit diverged")
 
 
 def residual_report(time_s: np.ndarray, compensated_dps: np.ndarray, truth: Mapping[str, np.ndarray],

@@ -376,3 +376,71 @@ def test_script_converts_and_fails_cleanly(tmp_path):
     assert failed.returncode != 0 and "Traceback" not in failed.stderr
     assert failed.stderr.strip().splitlines()[-1].startswith(f"error: {bad}: column 'GyroX (rpm)'")
     assert not (tmp_path / "out2.csv").exists()
+
+
+# ------------------------------------------------------------- spreadsheet dialects of the contract
+
+CONTRACT_HEADER = "time_s,temp_c,gyro_x_dps,gyro_y_dps,gyro_z_dps"
+CONTRACT_ROWS = [(0.0, 20.5, 0.25, -1.5, 2.0), (0.1, 20.75, 0.5, -1.25, 2.5), (0.2, 21.0, 0.75, -1.0, 3.0)]
+
+
+def _dialect(delimiter: str = ",", decimal: str = ".", trailing: str = "") -> str:
+    def cell(v: float) -> str:
+        return repr(v).replace(".", decimal)
+
+    rows = [delimiter.join(cell(v) for v in row) + trailing for row in CONTRACT_ROWS]
+    return "\n".join(["# sensor=bench", CONTRACT_HEADER.replace(",", delimiter) + trailing, *rows]) + "\n"
+
+
+DIALECTS = {
+    "semicolon": _dialect(";").encode(),
+    "decimal_comma": _dialect(";", ",").encode(),
+    "tab_decimal_comma": _dialect("\t", ",").encode(),
+    "utf16": _dialect().encode("utf-16"),
+    "utf16_semicolon": _dialect(";", ",").encode("utf-16"),
+    "trailing_comma": _dialect(trailing=",").encode(),
+}
+
+
+@pytest.mark.parametrize("name", sorted(DIALECTS))
+def test_spreadsheet_dialects_are_read_as_csv_recordings(tmp_path, name):
+    src = tmp_path / f"{name}.csv"
+    src.write_bytes(DIALECTS[name])
+    assert detect_format(src) == "csv"
+    for fmt in ("auto", "csv"):
+        rec = import_recording(src, fmt)
+        np.testing.assert_array_equal(np.column_stack([rec.time_s, rec.temp_c, rec.gyro_dps]), CONTRACT_ROWS)
+        assert rec.meta["sensor"] == "bench"
+    out = convert(src, tmp_path / "out.csv")
+    back = load_recording(tmp_path / "out.csv")  # the contract's own comma CSV now
+    np.testing.assert_array_equal(back.gyro_dps, out.gyro_dps)
+
+
+def test_commands_point_a_semicolon_file_to_convert(tmp_path):
+    src = tmp_path / "semi.csv"
+    src.write_bytes(DIALECTS["decimal_comma"])
+    with pytest.raises(RecordingError) as excinfo:
+        load_recording(src)
+    text = one_line_error(excinfo)
+    assert "cells are separated by ';', not ','; convert it first: python scripts/convert.py" in text
+
+
+def test_script_converts_a_semicolon_decimal_comma_file(tmp_path):
+    src = tmp_path / "excel.csv"
+    src.write_bytes(DIALECTS["decimal_comma"])
+    for fmt in ("auto", "csv"):
+        done = run_convert(tmp_path, f"input={src}", f"output={tmp_path / fmt}.csv", f"format={fmt}")
+        assert done.returncode == 0, done.stderr
+        np.testing.assert_array_equal(load_recording(tmp_path / f"{fmt}.csv").temp_c, [20.5, 20.75, 21.0])
+
+
+def test_lpms_and_psim_logs_saved_as_utf16_or_with_extra_cells(tmp_path):
+    src = tmp_path / "log16.csv"
+    src.write_bytes((LPMS_LATER + "\n" + "\n".join(lpms_rows()) + "\n").encode("utf-16"))
+    assert detect_format(src) == "lpms"
+    np.testing.assert_allclose(import_recording(src).gyro_dps, np.tile([0.5, -0.5, 1.0], (5, 1)))
+    # every row one cell longer than the header: refused, not read with the last cell dropped
+    extra = write_psim(tmp_path / "extra.csv", ["1000,0,0,0,0.1,0.1,0.1,256,9", "1020,0,0,0,0.1,0.1,0.1,256,9"])
+    with pytest.raises(RecordingError) as excinfo:
+        import_recording(extra, "psim")
+    assert "malformed row: the first data row has more cells than the header's 8" in one_line_error(excinfo)

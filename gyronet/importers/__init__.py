@@ -24,7 +24,8 @@ from typing import Callable, Mapping
 
 from gyronet.data import Recording, write_recording
 from gyronet.errors import GyronetError, RecordingError
-from gyronet.importers._common import read_header_line
+from gyronet.csvtable import sniff
+from gyronet.importers._common import read_header_line, read_text
 from gyronet.importers.contract import import_contract
 from gyronet.importers.lpms import import_lpms
 from gyronet.importers.psim import import_psim
@@ -58,8 +59,10 @@ def detect_format(path: str | os.PathLike) -> str:
         return "ulog"
     if path.name.lower().endswith(".csv.gz"):
         return "csv"
-    _, header = read_header_line(path)
-    names = {n.strip().lower().replace(" ", "") for n in header.split(",")}
+    text = read_text(path)
+    _, header = read_header_line(path, text)
+    delimiter, _ = sniff(text)
+    names = {n.strip().lower().replace(" ", "") for n in header.split(delimiter)}
     if "time(ms)" in names and any(n.startswith("gyrox") for n in names):
         return "psim"
     if any(n.startswith("timestamp") for n in names) and any(n.startswith(("gyrox", "gyrx")) for n in names):
@@ -67,7 +70,8 @@ def detect_format(path: str | os.PathLike) -> str:
     if "time_s" in names:
         return "csv"
     raise RecordingError(f"{path}: cannot tell the format from the header ({header[:80]!r}); "
-                         f"pass format={'|'.join(FORMATS)}")
+                         f"pass format={'|'.join(FORMATS)} (csv: the columns of CONTRACT.md, any of ',', ';' "
+                         "or tab between cells)")
 
 
 def import_recording(path: str | os.PathLike, format: str = "auto", **options) -> Recording:

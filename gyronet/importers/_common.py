@@ -8,6 +8,7 @@ that goes backwards is not a row to drop but a broken file: it raises a ``Record
 from __future__ import annotations
 
 import hashlib
+import io
 import logging
 import re
 from pathlib import Path
@@ -15,6 +16,7 @@ from typing import Mapping
 
 import numpy as np
 
+from gyronet.csvtable import read_preamble, read_source, to_utf8
 from gyronet.data import GYRO_COLUMNS, REQUIRED_COLUMNS, Recording
 from gyronet.errors import RecordingError
 
@@ -42,20 +44,15 @@ def snake(text: str) -> str:
     return text or "unnamed"
 
 
-def read_header_line(path: Path) -> tuple[int, str]:
+def read_text(path: Path) -> bytes:
+    """The file as UTF-8 bytes with ``\\n`` line ends (gunzipped, UTF-16 transcoded); see ``gyronet.csvtable``."""
+    return to_utf8(read_source(path), path)
+
+
+def read_header_line(path: Path, text: bytes | None = None) -> tuple[int, str]:
     """The first line that is neither blank nor a ``#`` comment: (1-based line number, text)."""
-    try:
-        with open(path, "r", encoding="utf-8-sig", errors="strict", newline="") as handle:
-            for line_no, line in enumerate(handle, start=1):
-                if "\x00" in line:
-                    raise RecordingError(f"{path}: not a text CSV file (binary content on line {line_no})")
-                if line.strip() and not line.lstrip().startswith("#"):
-                    return line_no, line.strip()
-    except UnicodeDecodeError:
-        raise RecordingError(f"{path}: not a text CSV file (not UTF-8)") from None
-    except OSError as err:
-        raise RecordingError(f"{path}: cannot read ({err.strerror or err})") from None
-    raise RecordingError(f"{path}: empty file (no header row)")
+    _, line_no, header, _ = read_preamble(read_text(path) if text is None else text, path)
+    return line_no, header
 
 
 def read_numeric_table(path: Path, header_line: int, names: list[str]) -> tuple[dict[str, np.ndarray], int]:
@@ -69,18 +66,33 @@ def read_numeric_table(path: Path, header_line: int, names: list[str]) -> tuple[
     columns, first_data_line
         ``names[i]`` -> values, and the 1-based line number of the first data row.
     """
+    import warnings
+
     import pandas as pd
 
+    text = read_text(path)
     options = dict(skiprows=header_line, header=None, names=names, skipinitialspace=True,
-                   skip_blank_lines=True, encoding="utf-8-sig", comment=None, index_col=False)
-    try:
-        frame = pd.read_csv(path, dtype=np.float64, **options)
-    except pd.errors.ParserError as err:
-        text = str(err).strip().splitlines()[-1]
-        raise RecordingError(f"{path}: malformed row ({text})") from None
-    except ValueError:
-        frame = pd.read_csv(path, dtype=str, keep_default_na=False, **options)
-        frame = _coerce_numeric(path, frame, header_line)
+                   skip_blank_lines=True, encoding="utf-8", encoding_errors="replace", comment=None,
+                   index_col=False)
+    with warnings.catch_warnings():
+        # "Length of header or names does not match length of data": cells beyond the header
+        warnings.simplefilter("error", pd.errors.ParserWarning)
+        try:
+            try:
+                frame = pd.read_csv(io.BytesIO(text), dtype=np.float64, **options)
+            except ValueError as err:
+                if isinstance(err, (pd.errors.ParserError, pd.errors.EmptyDataError)):
+                    raise
+                frame = pd.read_csv(io.BytesIO(text), dtype=str, keep_default_na=False, **options)
+                frame = _coerce_numeric(path, frame, header_line)
+        except pd.errors.ParserError as err:
+            text = str(err).strip().splitlines()[-1]
+            raise RecordingError(f"{path}: malformed row ({text})") from None
+        except pd.errors.ParserWarning:
+            raise RecordingError(f"{path}: malformed row: the first data row has more cells than the header's "
+                                 f"{len(names)}") from None
+        except pd.errors.EmptyDataError:
+            raise RecordingError(f"{path}: no samples after the header") from None
     if frame.empty:
         raise RecordingError(f"{path}: no samples after the header")
     return {name: frame[name].to_numpy(dtype=np.float64) for name in names}, header_line + 1
@@ -224,4 +236,5 @@ def degrees(rate_rad_s: np.ndarray) -> np.ndarray:
 
 
 __all__ = ["ACC_COLUMNS", "GYRO_COLUMNS", "STANDARD_GRAVITY_M_S2", "degrees", "fahrenheit_to_c",
-           "file_sha256", "finish", "read_header_line", "read_numeric_table", "regular_rate_hz", "snake"]
+           "file_sha256", "finish", "read_header_line", "read_numeric_table", "read_text", "regular_rate_hz",
+           "snake"]
