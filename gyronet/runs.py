@@ -22,9 +22,10 @@ import numpy as np
 from torch import nn
 
 from gyronet.data import Recording
-from gyronet.dataset import Blocks, DriftData, _features_by_key, _file_key, load_cached, static_rate_dps, to_blocks
+from gyronet.dataset import (MIN_TEMP_SPAN_C, MIN_TRAIN_BLOCKS, Blocks, DriftData, _features_by_key, _file_key,
+                             check_features_present, check_physical, load_cached, static_rate_dps, to_blocks)
 from gyronet.errors import GyronetError
-from gyronet.features import PAPER_FEATURES, FeatureExtractor, required_columns
+from gyronet.features import PAPER_FEATURES, FeatureExtractor
 from gyronet.run_offsets import RunOffsets
 
 log = logging.getLogger(__name__)
@@ -77,12 +78,15 @@ def load_runs(paths: Sequence[str], specs: Sequence[dict], static_rate: Sequence
         if abs(rec.fs_hz - fs_hz) > 0.01 * fs_hz:
             raise GyronetError(f"{rec.path}: sampled at {rec.fs_hz:.4g} Hz, but {recordings[0].path} at "
                                f"{fs_hz:.4g} Hz: the runs of one training need one rate")
+    span_c = max(float(r.temp_c.max()) for r in recordings) - min(float(r.temp_c.min()) for r in recordings)
+    if span_c < MIN_TEMP_SPAN_C:
+        raise GyronetError(f"data.paths: the runs' temperatures span {span_c:.3g} degC together; a drift model "
+                           f"needs at least {MIN_TEMP_SPAN_C:g} degC of range")
     specs_json = json.dumps([dict(s) for s in specs], sort_keys=True)
     runs, names = [], set()
     for index, (path, rec) in enumerate(zip(paths, recordings)):
-        missing = [c for c in required_columns(specs) if c not in rec.columns]
-        if missing:
-            raise GyronetError(f"{path}: the features need column(s) {', '.join(missing)}")
+        check_physical(rec)  # before any feature work, as for one recording
+        check_features_present(rec, specs)
         name = run_name(str(path))
         name = name if name not in names else f"{name}_{index}"
         names.add(name)
@@ -146,7 +150,7 @@ class RunsData:
         self.offsets = (RunOffsets(self.train.run, len(self.train_runs))
                         if self.run_offsets and len(self.train_runs) >= 2 else None)
         for run, blocks in zip(self.train_runs, (r.blocks(self.block_s) for r in self.train_runs)):
-            if len(blocks) < 10:
+            if len(blocks) < MIN_TRAIN_BLOCKS:
                 raise GyronetError(f"{run.path}: too short to train on ({len(blocks)} blocks of {self.block_s} s)")
         log.info("training runs %s, %d blocks of %g s%s", ", ".join(r.name for r in self.train_runs), len(self.train),
                  self.block_s, f"; validation run {val_run.name}" if held_out is not None else "")

@@ -1,6 +1,5 @@
 """Damaged, edited and mismatched bundles: each is refused in one BundleError line, or (an edit
 that changes nothing the model computes) loads and gives the intact bundle's numbers."""
-import copy
 import json
 import logging
 import shutil
