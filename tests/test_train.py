@@ -72,7 +72,7 @@ def test_models_train_and_are_deterministic_with_a_seed(paper_csv, name):
 def test_compensate_matches_live_one_sample_at_a_time(bundle, cycle_csv, tmp_path):
     out = tmp_path / "o.csv"
     proc = subprocess.run([sys.executable, "scripts/compensate.py", f"model={bundle}", f"input={cycle_csv}",
-                           f"output={out}"], cwd=ROOT, capture_output=True, text=True)
+                           f"output={out}", f"hydra.run.dir={tmp_path / 'run'}"], cwd=ROOT, capture_output=True, text=True)
     assert proc.returncode == 0, proc.stderr
     offline = load_recording(out, required=("time_s", "gyro_x_dps")).gyro_dps
     recording = load_recording(cycle_csv)
