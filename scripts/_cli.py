@@ -10,6 +10,7 @@ In a multirun, a failed job raises instead (a sweeper scores it inf) with the sa
 """
 from __future__ import annotations
 
+import collections.abc
 import difflib
 import functools
 import importlib
@@ -17,6 +18,8 @@ import inspect
 import logging
 import os
 import re
+import types
+import typing
 from pathlib import Path
 from typing import Any, Callable, Iterator, Mapping, Sequence
 
@@ -38,7 +41,7 @@ GRAMMAR_URL = "https://hydra.cc/docs/advanced/override_grammar/basic/"
 Task = Callable[[DictConfig], Any]
 
 
-def command(config_name: str, config_dir: str = "", schemas: Mapping[str, str] | None = None,
+def command(config_name: str, config_dir: str = "", schemas: Mapping[str, Any] | None = None,
             required: Sequence[str] = ()) -> Callable[[Task], Callable[[], Any]]:
     """Decorate a script's task: ``@hydra.main`` on ``conf/<config_dir>/<config_name>.yaml``, errors as one line.
 
@@ -47,9 +50,10 @@ def command(config_name: str, config_dir: str = "", schemas: Mapping[str, str] |
     config_name, config_dir
         The primary config, ``conf/<config_dir>/<config_name>.yaml``.
     schemas
-        Config nodes that become keyword arguments of a callable, by dotted key, e.g.
-        ``{"train": "gyronet.train.fit"}``: a key the callable does not take is refused before the
-        task runs. Nodes with a ``_target_`` are checked against their target without this.
+        What a config node is, by dotted key: the keyword arguments of a callable, by its dotted
+        path (``{"train": "gyronet.train.fit"}``), or a value of a type (``{"seed": int}``). A key
+        the callable does not take, or a value of the wrong type, is refused before the task runs.
+        Nodes with a ``_target_`` are checked against their target without this.
     required
         Dotted keys that must have a value (not ``???``) before the task runs: those a task reads
         with ``OmegaConf.to_container``, which passes ``???`` on as a string.
@@ -83,7 +87,7 @@ def command(config_name: str, config_dir: str = "", schemas: Mapping[str, str] |
     return decorate
 
 
-def _guard(task: Task, schemas: Mapping[str, str], required: Sequence[str]) -> Task:
+def _guard(task: Task, schemas: Mapping[str, Any], required: Sequence[str]) -> Task:
     """The task as Hydra runs it: settings checked first; a user error ends a single run in one line."""
 
     @functools.wraps(task)
@@ -109,29 +113,86 @@ def _guard(task: Task, schemas: Mapping[str, str], required: Sequence[str]) -> T
     return guarded
 
 
-# ---------------------------------------------------------------- settings no callable takes
+# ---------------------------------------------------------------- settings the code cannot take
 
 
-def check_settings(cfg: DictConfig, schemas: Mapping[str, str] = {}, required: Sequence[str] = ()) -> None:
-    """Refuse a key (added with ``+key=``) that the node's ``_target_`` or schema callable does not take,
-    and a ``required`` key without a value."""
+def check_settings(cfg: DictConfig, schemas: Mapping[str, Any] = {}, required: Sequence[str] = ()) -> None:
+    """Refuse, before any work, a setting that would end in a traceback deep inside the code.
+
+    That is a ``required`` key without a value; a key (added with ``+key=``) that the node's
+    ``_target_`` or schema callable does not take; and a value of the wrong type for its typed
+    parameter (``diagnose.alpha=abc``). A schema is a callable's dotted path, whose keyword
+    arguments the node holds, or a type, that of a single value (``{"seed": int}``).
+    """
     for key in required:
         parent_key, _, name = key.rpartition(".")
         parent = OmegaConf.select(cfg, parent_key) if parent_key else cfg
         if isinstance(parent, DictConfig) and OmegaConf.is_missing(parent, name):
             raise ConfigError(f"no value for {key}: add {key}=...")
+    for key, schema in schemas.items():
+        if not isinstance(schema, str):
+            _check_type(cfg, key, schema)
     tree = OmegaConf.to_container(cfg, resolve=False)
     for key, node in _nodes(tree, ""):
         target = node.get("_target_") if isinstance(node, dict) else None
         name = schemas.get(key) or (target if isinstance(target, str) and "${" not in target else None)
-        if name is None:
+        if not isinstance(name, str):
             continue
-        accepted = _parameters(name)
-        if accepted is None:  # not importable (instantiate says why) or takes **kwargs
+        hints = _parameters(name)
+        if hints is None:  # not importable (instantiate says why) or takes **kwargs
             continue
         for setting in node:
-            if not setting.startswith("_") and setting not in accepted:
-                raise ConfigError(unknown_setting(f"{key}.{setting}", [f"{key}.{p}" for p in accepted]))
+            if setting.startswith("_"):
+                continue
+            if setting not in hints:
+                raise ConfigError(unknown_setting(f"{key}.{setting}", [f"{key}.{p}" for p in hints]))
+            _check_type(cfg, f"{key}.{setting}", hints[setting])
+
+
+def _check_type(cfg: DictConfig, key: str, hint: Any) -> None:
+    try:
+        value = OmegaConf.select(cfg, key, throw_on_missing=True)
+        if isinstance(value, (DictConfig, ListConfig)):
+            value = OmegaConf.to_container(value, resolve=True, throw_on_missing=True)
+    except Exception:  # noqa: BLE001 -- a missing or unresolvable value: the task's own access says so
+        return
+    expected = _expected(value, hint)
+    if expected is not None:
+        raise ConfigError(f"{key} must be {expected}, got {value!r}")
+
+
+_SEQUENCES = (list, tuple, collections.abc.Sequence)
+_NAMES = {int: "an integer", float: "a number", bool: "true or false", str: "a string", type(None): "null",
+          dict: "a mapping", list: "a list", tuple: "a list"}
+_PLURALS = {int: "integers", float: "numbers", bool: "true/false values", str: "strings"}
+
+
+def _expected(value: Any, hint: Any) -> str | None:
+    """None when ``value`` fits the type ``hint`` (or the hint is not a plain one), else what it must be."""
+    origin, args = typing.get_origin(hint), typing.get_args(hint)
+    if origin in (typing.Union, types.UnionType):
+        known = [a for a in args if a in _NAMES or typing.get_origin(a) in (*_SEQUENCES, dict)]
+        if not known or any(_expected(value, a) is None for a in known):
+            return None
+        return " or ".join(_expected(value, a) or "" for a in known)
+    if hint is bool:
+        return None if isinstance(value, bool) else _NAMES[bool]
+    if hint is int:
+        return None if isinstance(value, int) and not isinstance(value, bool) else _NAMES[int]
+    if hint is float:
+        return None if isinstance(value, (int, float)) and not isinstance(value, bool) else _NAMES[float]
+    if hint in (str, type(None), dict):
+        return None if isinstance(value, hint) else _NAMES[hint]
+    if hint in (list, tuple) or origin in _SEQUENCES:
+        if not isinstance(value, list):
+            return _NAMES[list]
+        items = [a for a in args if a is not Ellipsis]
+        if len(set(items)) == 1 and items[0] in _PLURALS and any(_expected(v, items[0]) for v in value):
+            return f"a list of {_PLURALS[items[0]]}"
+        return None
+    if origin is dict or hint is collections.abc.Mapping or origin is collections.abc.Mapping:
+        return None if isinstance(value, dict) else _NAMES[dict]
+    return None
 
 
 def _nodes(tree: Any, prefix: str) -> Iterator[tuple[str, Any]]:
@@ -145,15 +206,21 @@ def _nodes(tree: Any, prefix: str) -> Iterator[tuple[str, Any]]:
             yield from _nodes(value, f"{prefix}[{i}]")
 
 
-def _parameters(name: str) -> list[str] | None:
+def _parameters(name: str) -> dict[str, Any] | None:
+    """The keyword parameters of the callable at ``name`` and their type hints (Any when unknown)."""
     try:
-        signature = inspect.signature(_locate(name))
+        target = _locate(name)
+        signature = inspect.signature(target)
     except Exception:  # noqa: BLE001 -- the task's own instantiate reports a bad target
         return None
     params = signature.parameters.values()
     if any(p.kind == p.VAR_KEYWORD for p in params):
         return None
-    return [p.name for p in params if p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY)]
+    try:
+        hints = typing.get_type_hints(target.__init__ if inspect.isclass(target) else target)
+    except Exception:  # noqa: BLE001 -- unresolvable annotations: check the names only
+        hints = {}
+    return {p.name: hints.get(p.name, Any) for p in params if p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY)}
 
 
 def _locate(path: str) -> Any:

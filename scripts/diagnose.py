@@ -16,7 +16,7 @@ from _cli import command  # noqa: E402
 
 
 @command("diagnose", schemas={"train": "gyronet.train.fit", "diagnose": "gyronet.diagnose.DiagnoseOptions",
-                              "diagnose.candidates": "gyronet.diagnose.CandidateGrid"})
+                              "diagnose.candidates": "gyronet.diagnose.CandidateGrid", "seed": int})
 def main(cfg: DictConfig) -> None:
     data = {k: v for k, v in OmegaConf.to_container(cfg.data, resolve=True, throw_on_missing=True).items() if not k.startswith("_")}
     diagnose(data, lambda n_inputs: instantiate(cfg.model, n_inputs=n_inputs), HydraConfig.get().runtime.output_dir,

@@ -170,6 +170,9 @@ TRAIN_EXTRA = {
     "close_option": (["model=rbff"], "did you mean model=rbf?"),
     "hydra_key_typo": (["hydra.run.dri=x"], "did you mean hydra.run.dir?"),
     "bad_interpolation": (["data.path=F.csv", "data.block_s=${nope}"], "nope"),
+    "wrong_type": (["data.path=F.csv", "model.n_centers=abc"], "model.n_centers must be an integer, got 'abc'"),
+    "wrong_item_type": (["data.path=F.csv", "data.static_rate_dps=[a,0,0]"],
+                        "data.static_rate_dps must be a list of numbers"),
 }
 
 
