@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import collections.abc
 import difflib
+import errno
 import functools
 import importlib
 import inspect
@@ -294,7 +295,14 @@ def user_message(err: BaseException) -> str | None:
         return one_line(text)
     if isinstance(err, OmegaConfBaseException):
         return _omegaconf_text(err)
+    if isinstance(err, OSError) and (err.filename is not None or err.errno in _USER_ERRNOS):
+        # a path that cannot be read or written, a full disk: the user's to fix, not a bug
+        where = f"{err.filename}: " if err.filename is not None else ""
+        return f"{where}{err.strerror or err}"
     return None
+
+
+_USER_ERRNOS = {errno.ENOSPC, errno.EDQUOT, errno.EACCES, errno.EROFS, errno.EPERM}
 
 
 def _in_chain(err: BaseException, kind: type) -> Any:

@@ -18,7 +18,7 @@ from _cli import command  # noqa: E402
 log = logging.getLogger(__name__)
 
 
-@command("allan")
+@command("allan", schemas={"per_decade": int})
 def main(cfg: DictConfig) -> None:
     if OmegaConf.is_missing(cfg, "input"):
         raise GyronetError("no recording given: add input=F.csv")

@@ -14,7 +14,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))  # scripts/_cli.py, als
 from _cli import command  # noqa: E402
 
 
-@command("simulate")
+@command("simulate", schemas={"fs_hz": float, "seed": int, "sensor_seed": int, "duration_s": float | None})
 def main(cfg: DictConfig) -> None:
     if OmegaConf.is_missing(cfg, "output"):
         raise GyronetError("no output file: add output=F.csv")

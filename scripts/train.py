@@ -14,7 +14,7 @@ from _cli import command  # noqa: E402
 
 
 # a bad input is one line and exit 2; in a sweep it raises, and the sweeper scores the job inf
-@command("train", schemas={"train": "gyronet.train.fit", "seed": int})
+@command("train", schemas={"train": "gyronet.train.fit", "seed": int, "eval.paths": list, "eval.block_s": float})
 def main(cfg: DictConfig) -> float:
     data = instantiate(cfg.data)
     model = instantiate(cfg.model, n_inputs=data.n_features)

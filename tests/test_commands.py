@@ -173,6 +173,7 @@ TRAIN_EXTRA = {
     "wrong_type": (["data.path=F.csv", "model.n_centers=abc"], "model.n_centers must be an integer, got 'abc'"),
     "wrong_item_type": (["data.path=F.csv", "data.static_rate_dps=[a,0,0]"],
                         "data.static_rate_dps must be a list of numbers"),
+    "eval_paths_text": (["data.path=F.csv", "eval.paths=G.csv"], "eval.paths must be a list, got 'G.csv'"),
 }
 
 
@@ -190,6 +191,11 @@ def results(tmp_path_factory, bad_files) -> dict[str, dict]:
     for case, (args, expect) in TRAIN_EXTRA.items():
         cases.append({"id": f"train-{case}", "script": "scripts/train.py", "expect": [expect],
                       "args": [*args, "train.progress=false", f"hydra.run.dir={work / 'train' / case}"]})
+    # an output that cannot be written (under a file): the path and the reason, no traceback
+    not_a_folder = bad_files["empty"]
+    cases.append({"id": "simulate-unwritable_output", "script": "scripts/simulate.py", "expect": [str(not_a_folder)],
+                  "args": [f"output={not_a_folder}/s.csv", "profile=constant", "duration_s=60",
+                           f"hydra.run.dir={work / 'simulate' / 'unwritable'}"]})
     ok = [("help", ["--help"]), ("cfg_job", ["--cfg", "job", "data.path=F.csv"])]
     cases += [{"id": f"train-{case}", "script": "scripts/train.py", "args": args} for case, args in ok]
     # a multirun: the failed job raises inside the sweep, and the sweep's end is one line
@@ -209,7 +215,7 @@ def _default_ids() -> list[str]:
     return [c["id"] for c in bad_input_cases(placeholder, files, placeholder) if default_case(c["id"])]
 
 
-@pytest.mark.parametrize("case", _default_ids() + [f"train-{c}" for c in TRAIN_EXTRA])
+@pytest.mark.parametrize("case", _default_ids() + [f"train-{c}" for c in TRAIN_EXTRA] + ["simulate-unwritable_output"])
 def test_bad_input_is_one_line_and_exit_2(results, case):
     result = results[case]
     assert_one_line_error(result, *result["expect"])
