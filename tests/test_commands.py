@@ -198,6 +198,12 @@ def results(tmp_path_factory, bad_files) -> dict[str, dict]:
                            f"hydra.run.dir={work / 'simulate' / 'unwritable'}"]})
     ok = [("help", ["--help"]), ("cfg_job", ["--cfg", "job", "data.path=F.csv"])]
     cases += [{"id": f"train-{case}", "script": "scripts/train.py", "args": args} for case, args in ok]
+    # good runs through the same wrapper: a single run into hydra.run.dir, and a -m multirun
+    quick = ["profile=constant", "duration_s=60", "fs_hz=2"]
+    cases.append({"id": "simulate-run", "script": "scripts/simulate.py",
+                  "args": [f"output={work}/one.csv", *quick, f"hydra.run.dir={work / 'one_run'}"]})
+    cases.append({"id": "simulate-multirun", "script": "scripts/simulate.py",
+                  "args": ["-m", f"output={work}/m0.csv,{work}/m1.csv", *quick, f"hydra.sweep.dir={work / 'sweep'}"]})
     # a multirun: the failed job raises inside the sweep, and the sweep's end is one line
     cases.append({"id": "train-ga_all_failed", "script": "scripts/train.py", "args": [
         "-m", "hydra/sweeper=ga", f"data.path={bad_files['no_column']}", f"hydra.sweep.dir={work / 'ga'}",
@@ -226,6 +232,15 @@ def test_help_and_show_config_still_work(results):
     assert "== Configuration groups ==" in results["train-help"]["stdout"]
     shown = results["train-cfg_job"]
     assert shown["code"] == 0 and "_target_: gyronet.dataset.DriftData" in shown["stdout"], shown["stderr"]
+
+
+def test_good_runs_and_multiruns_still_work(results):
+    work = Path(results["simulate-run"]["work"])
+    for case in ("simulate-run", "simulate-multirun"):
+        assert results[case]["code"] == 0, results[case]["stderr"][-2000:]
+    assert (work / "one.csv").is_file() and (work / "one_run" / ".hydra" / "overrides.yaml").is_file()
+    assert (work / "m0.csv").is_file() and (work / "m1.csv").is_file()
+    assert (work / "sweep" / "0" / ".hydra").is_dir() and (work / "sweep" / "1" / ".hydra").is_dir()
 
 
 def test_failed_jobs_of_a_sweep_still_raise_to_the_sweeper(results):
