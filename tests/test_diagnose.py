@@ -450,15 +450,16 @@ def test_bad_options_are_refused_with_the_setting_named(options, message):
     assert str(err.value).startswith(message)
 
 
-@pytest.mark.parametrize("features, message", [
-    ([{"kind": "nope"}], "data.features: bad feature spec {'kind': 'nope'} (unknown feature kind 'nope')"),
-    ([], "data.features is empty"),
+@pytest.mark.parametrize("data, message", [
+    ({"features": [{"kind": "nope"}]}, "data.features: bad feature spec {'kind': 'nope'} (unknown feature kind 'nope')"),
+    ({"features": []}, "data.features is empty"),
+    ({"block_s": 0}, "data.block_s must be positive, got 0"),
 ])
-def test_bad_declared_inputs_are_refused_before_any_work(tmp_path, features, message):
+def test_bad_declared_inputs_are_refused_before_any_work(tmp_path, data, message):
     from gyronet.errors import GyronetError
 
     with pytest.raises(GyronetError) as err:
-        diagnose({"path": str(tmp_path / "never_read.csv"), "features": features}, _default_model(), tmp_path)
+        diagnose({"path": str(tmp_path / "never_read.csv"), **data}, _default_model(), tmp_path)
     assert str(err.value).startswith(message)
 
 

@@ -280,6 +280,10 @@ def diagnose(data_options: Mapping[str, Any], make_model: Callable[[int], torch.
         check_feature_specs(data_options["features"], "data.features")
         if not data_options["features"]:
             raise GyronetError("data.features is empty: declare at least one input, e.g. [{kind: temp}]")
+    for name in ("block_s", "rate_tau_s"):
+        value = data_options.get(name)
+        if value is not None and not value > 0:
+            raise GyronetError(f"data.{name} must be positive, got {value}")
     if 1 / (options.n_shifts + 1) > options.alpha:
         log.warning("n_shifts=%d cannot give a p-value below alpha=%g: nothing can pass",
                     options.n_shifts, options.alpha)
