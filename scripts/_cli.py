@@ -40,6 +40,7 @@ log = logging.getLogger(__name__)
 CONF_DIR = Path(__file__).resolve().parent.parent / "conf"
 GRAMMAR_URL = "https://hydra.cc/docs/advanced/override_grammar/basic/"
 Task = Callable[[DictConfig], Any]
+_OURS = "GYRONET_CLI_SET_HYDRA_FULL_ERROR"  # marks HYDRA_FULL_ERROR as set by command(), for child processes
 
 
 def command(config_name: str, config_dir: str = "", schemas: Mapping[str, Any] | None = None,
@@ -67,10 +68,11 @@ def command(config_name: str, config_dir: str = "", schemas: Mapping[str, Any] |
 
         @functools.wraps(task)
         def main() -> Any:
-            if os.environ.get("HYDRA_FULL_ERROR") == "1":  # the user asked for Hydra's full tracebacks
+            # the user asked for Hydra's full tracebacks (not we, for a parent command)
+            if os.environ.get("HYDRA_FULL_ERROR") == "1" and _OURS not in os.environ:
                 return hydra_main()
             # Hydra then raises its errors instead of printing them in several lines and exiting 1
-            os.environ["HYDRA_FULL_ERROR"] = "1"
+            os.environ.update({"HYDRA_FULL_ERROR": "1", _OURS: "1"})
             try:
                 return hydra_main()
             except Exception as err:
@@ -81,6 +83,7 @@ def command(config_name: str, config_dir: str = "", schemas: Mapping[str, Any] |
                 fail(message)
             finally:
                 os.environ.pop("HYDRA_FULL_ERROR", None)
+                os.environ.pop(_OURS, None)
 
         main.__wrapped__ = guarded  # type: ignore[attr-defined]  # the task as Hydra runs it
         return main
