@@ -246,7 +246,13 @@ def test_too_many_failures_stop_the_sweep(app: Path) -> None:
 def test_resume_continues_without_redoing_generations(app: Path) -> None:
     run_app(app)
     before, n_calls = history(app), calls(app)
+    # what a killed third generation would have left: a job folder that is in no history
+    leftover = app / "sweep" / str(1 + max(e["job_idx"] for g in before["generations"] for e in g["individuals"]))
+    (leftover / "tb").mkdir(parents=True)
+    (leftover / "tb" / "events.out.tfevents.killed").write_text("")
     run_app(app, "hydra.sweeper.generations=3")
+    assert (app / "sweep" / "interrupted" / leftover.name / "tb" / "events.out.tfevents.killed").is_file()
+    assert not (leftover / "tb" / "events.out.tfevents.killed").exists() and leftover.is_dir()  # run again, clean
     after = history(app)
     assert after["generations"][:2] == before["generations"]
     new_jobs = [e for e in after["generations"][2]["individuals"] if not e["cached"]]

@@ -6,7 +6,8 @@ writing into the job folders that a resumed sweep reuses. The sweeper hands the 
 wrapped in :class:`WatchedTask`; in a worker process (a direct child of the sweep), its first call
 starts a daemon thread that polls the parent pid and ends the process when the sweep is gone.
 Jobs the sweep runs in its own process (the basic launcher), or on other machines (a cluster
-launcher), are left alone.
+launcher), are left alone. On resume, the folders of the interrupted generation's jobs are set
+aside (:func:`set_aside_interrupted_jobs`), so the jobs run again into clean folders.
 """
 from __future__ import annotations
 
@@ -15,7 +16,8 @@ import logging
 import os
 import threading
 import time
-from typing import Any, Callable
+from pathlib import Path
+from typing import Any, Callable, List, Optional
 
 log = logging.getLogger(__name__)
 
@@ -63,3 +65,32 @@ def _exit_when_orphaned(sweep_pid: int, poll_s: float) -> None:
         log.warning("the sweep (pid %d) is gone: worker %d stops its job and exits", sweep_pid, os.getpid())
     finally:
         os._exit(EXIT_STATUS)
+
+
+JOB_NUM_SUBDIR = "${hydra.job.num}"  # Hydra's default hydra.sweep.subdir: job n writes to <sweep dir>/n
+INTERRUPTED_DIR = "interrupted"
+
+
+def set_aside_interrupted_jobs(sweep_dir: Path, first_job: int, subdir: Optional[str]) -> List[Path]:
+    """Move the folders of jobs numbered ``first_job`` and up (run by an interrupted sweep, in no
+    history) to ``<sweep dir>/interrupted/``, so a resumed job does not write beside its killed
+    predecessor's files (two event files in one ``tb/``). Only with the default ``subdir``, where
+    a folder's name is its job number; returns where they went.
+    """
+    if subdir != JOB_NUM_SUBDIR or not sweep_dir.is_dir():
+        return []
+    moved = []
+    for folder in sorted(sweep_dir.iterdir()):
+        if folder.is_dir() and folder.name.isdigit() and int(folder.name) >= first_job:
+            target = sweep_dir / INTERRUPTED_DIR / folder.name
+            n = 1
+            while target.exists():
+                target = sweep_dir / INTERRUPTED_DIR / f"{folder.name}.{n}"
+                n += 1
+            target.parent.mkdir(exist_ok=True)
+            folder.rename(target)
+            moved.append(target)
+    if moved:
+        log.warning("set aside %d folder(s) of the interrupted generation's jobs in %s", len(moved),
+                    sweep_dir / INTERRUPTED_DIR)
+    return moved
