@@ -15,7 +15,7 @@ import torch
 
 from gyronet.compensator import Compensator, build_meta
 from gyronet.data import AXES, load_recording, load_truth, truth_path
-from gyronet.dataset import DriftData
+from gyronet.dataset import DriftData, block_rmse, static_rate_dps
 from gyronet.export import save_bundle
 from gyronet.train import evaluate, fit
 
@@ -57,13 +57,53 @@ def _meta(model: torch.nn.Module, data: DriftData) -> dict[str, Any]:
 
 
 def evaluate_paths(bundle_dir: Path, paths: Sequence[str], block_s: float) -> dict[str, dict]:
-    """Evaluate a saved bundle on each held-out recording (with its ground truth when it has one)."""
+    """Evaluate a saved bundle on each held-out recording (with its ground truth when it has one).
+
+    Each result also holds ``residual_rms_dps``: the ``block_s`` block RMS of the compensated rate
+    minus the recording's static rate, per axis (the figure there is without a truth). Each
+    recording's share outside the trained temperature range and its figures are logged, so that
+    they reach the console and not only ``report.json``.
+    """
     results = {}
     for path in paths:
         recording = load_recording(path)
         truth = load_truth(path).columns if truth_path(path).is_file() else None
-        results[str(path)] = evaluate(Compensator.load(bundle_dir), recording, truth, block_s)
+        compensator = Compensator.load(bundle_dir)
+        result = evaluate(compensator, recording, truth, block_s)
+        arrays = result["_arrays"]
+        residual = block_rmse(arrays["time_s"], arrays["compensated_dps"] - static_rate_dps(recording), block_s)
+        result["residual_rms_dps"] = dict(zip(AXES, residual.tolist()))
+        _log_held_out(Path(path).name, result, compensator.temp_range_c, block_s)
+        results[str(path)] = result
     return results
+
+
+def _log_held_out(name: str, result: Mapping[str, Any], temp_range_c: Sequence[float], block_s: float) -> None:
+    """Out-of-range share (a warning when any) and the held-out figures, one line each."""
+    low, high = temp_range_c
+    n_out, n = result["n_out_of_range"], result["n_samples"]
+    if n_out:
+        log.warning("held-out %s: %d of %d samples (%.1f %%) outside the trained temperature range "
+                    "[%.2f, %.2f] degC; the model holds its edge value there, and the figures below include "
+                    "them", name, n_out, n, 100.0 * n_out / max(n, 1), low, high)
+    else:
+        log.info("held-out %s: all %d samples inside the trained temperature range [%.2f, %.2f] degC",
+                 name, n, low, high)
+
+    def per_axis(values: Mapping[str, float]) -> str:
+        return ", ".join(f"{a}={values[a]:.4g}" for a in AXES)
+
+    allan = {stage: result["allan"][stage] for stage in ("raw", "compensated")}
+    nb = "; ".join(f"{stage} N {per_axis({a: allan[stage][a]['arw_deg_rthr'] for a in AXES})} deg/sqrt(h), "
+                   f"B {per_axis({a: allan[stage][a]['bias_instability_deg_hr'] for a in AXES})} deg/h"
+                   for stage in ("compensated", "raw"))
+    if "truth" in result:
+        log.info("held-out %s: residual / noise floor %s (residual %s deg/s, %g s blocks, against the truth); %s",
+                 name, per_axis(result["truth"]["ratio_to_floor"]), per_axis(result["truth"]["residual_dps"]),
+                 block_s, nb)
+    else:
+        log.info("held-out %s: %g s residual RMS %s deg/s (no truth: compensated minus the static rate); %s",
+                 name, block_s, per_axis(result["residual_rms_dps"]), nb)
 
 
 def train_run(data: DriftData, model: torch.nn.Module, optim: Callable | None, out_dir: str | Path,
@@ -98,7 +138,7 @@ def train_run(data: DriftData, model: torch.nn.Module, optim: Callable | None, o
 
 
 def _eval_metrics(result: Mapping[str, Any], prefix: str) -> dict[str, float]:
-    metrics = {}
+    metrics = {f"{prefix}/residual_rms_{axis}_dps": value for axis, value in result["residual_rms_dps"].items()}
     for stage in ("raw", "compensated", "noise_only"):
         for axis, values in result["allan"].get(stage, {}).items():
             metrics[f"{prefix}/{stage}_arw_{axis}_deg_rthr"] = values["arw_deg_rthr"]

@@ -3,20 +3,22 @@
 Writes A.json (CONTRACT.md section 3: per axis ``taus_s``, ``adev_dps``, N, B, K) and A.png.
 """
 import logging
+import sys
 from pathlib import Path
 
-import hydra
 from omegaconf import DictConfig, OmegaConf
 
 from gyronet.allan import allan_report, format_table, plot_allan, report_to_json
 from gyronet.data import ALLAN_COLUMNS, load_recording
-from gyronet.errors import GyronetError, exit_on_error
+from gyronet.errors import GyronetError
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # scripts/_cli.py, also when this file is run by path
+from _cli import command  # noqa: E402
 
 log = logging.getLogger(__name__)
 
 
-@hydra.main(version_base="1.3", config_path="../conf", config_name="allan")
-@exit_on_error
+@command("allan", schemas={"per_decade": int})
 def main(cfg: DictConfig) -> None:
     if OmegaConf.is_missing(cfg, "input"):
         raise GyronetError("no recording given: add input=F.csv")

@@ -1,13 +1,16 @@
 """Apply a compensator bundle to a recording: python scripts/compensate.py model=D/compensator input=F.csv output=O.csv."""
-import hydra
+import sys
+from pathlib import Path
+
 from omegaconf import DictConfig, OmegaConf
 
-from gyronet.errors import exit_on_error
 from gyronet.offline import compensate_file
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # scripts/_cli.py, also when this file is run by path
+from _cli import command  # noqa: E402
 
-@hydra.main(version_base="1.3", config_path="../conf/deploy", config_name="compensate")
-@exit_on_error
+
+@command("compensate", "deploy")
 def main(cfg: DictConfig) -> None:
     compensate_file(cfg.model, cfg.input, cfg.output, resample=bool(cfg.get("resample", False)),
                     startup=OmegaConf.to_container(cfg.startup, resolve=True))

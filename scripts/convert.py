@@ -3,15 +3,18 @@
 ``format=csv`` (or auto) also reads a spreadsheet's export of the contract's columns: ``;`` or tab
 between cells, decimal commas, UTF-16, trailing commas; the output is the plain comma CSV.
 """
-import hydra
+import sys
+from pathlib import Path
+
 from omegaconf import DictConfig, OmegaConf
 
-from gyronet.errors import exit_on_error
 from gyronet.importers import FORMATS, convert_with_options
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # scripts/_cli.py, also when this file is run by path
+from _cli import command  # noqa: E402
 
-@hydra.main(version_base="1.3", config_path="../conf", config_name="convert")
-@exit_on_error
+
+@command("convert")
 def main(cfg: DictConfig) -> None:
     options = {name: OmegaConf.to_container(cfg[name], resolve=True) for name in FORMATS if name in cfg}
     convert_with_options(cfg.input, cfg.output, cfg.format, cfg.sensor, options)

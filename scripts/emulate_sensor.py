@@ -1,14 +1,18 @@
 """Play a recording into a pseudo-terminal as a sensor would: python scripts/emulate_sensor.py input=F.csv protocol=lpbus."""
-import hydra
+import sys
+from pathlib import Path
+
 from omegaconf import DictConfig, OmegaConf
 
-from gyronet.errors import exit_on_error
 from gyronet.stream import FaultPlan, LpBusLayout
 from gyronet.stream.pty_sensor import emulate_file
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # scripts/_cli.py, also when this file is run by path
+from _cli import command  # noqa: E402
 
-@hydra.main(version_base="1.3", config_path="../conf", config_name="emulate")
-@exit_on_error
+
+@command("emulate", schemas={"lpbus": "gyronet.stream.LpBusLayout", "faults": "gyronet.stream.FaultPlan"},
+         required=("input",))
 def main(cfg: DictConfig) -> None:
     options = OmegaConf.to_container(cfg, resolve=True)
     emulate_file(options["input"], options["protocol"], float(options["speed"]),

@@ -2,15 +2,19 @@
 
 Writes F.csv (the recording) and F.truth.csv (its ground truth); see conf/simulate.yaml.
 """
-import hydra
+import sys
+from pathlib import Path
+
 from omegaconf import DictConfig, OmegaConf
 
-from gyronet.errors import GyronetError, exit_on_error
+from gyronet.errors import GyronetError
 from gyronet.sim import simulate, write_simulation
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # scripts/_cli.py, also when this file is run by path
+from _cli import command  # noqa: E402
 
-@hydra.main(version_base="1.3", config_path="../conf", config_name="simulate")
-@exit_on_error
+
+@command("simulate", schemas={"fs_hz": float, "seed": int, "sensor_seed": int, "duration_s": float | None})
 def main(cfg: DictConfig) -> None:
     if OmegaConf.is_missing(cfg, "output"):
         raise GyronetError("no output file: add output=F.csv")

@@ -1,14 +1,17 @@
 """Compensate a live sensor stream: python scripts/stream.py model=D/compensator port=P baud=B protocol=lpbus output=O.csv."""
-import hydra
+import sys
+from pathlib import Path
+
 from omegaconf import DictConfig, OmegaConf
 
-from gyronet.errors import exit_on_error
 from gyronet.stream import LpBusLayout
 from gyronet.stream.live import run_stream, stop_on_signals
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # scripts/_cli.py, also when this file is run by path
+from _cli import command  # noqa: E402
 
-@hydra.main(version_base="1.3", config_path="../conf/deploy", config_name="stream")
-@exit_on_error
+
+@command("stream", "deploy", schemas={"lpbus": "gyronet.stream.LpBusLayout"}, required=("model", "port", "output"))
 def main(cfg: DictConfig) -> None:
     options = OmegaConf.to_container(cfg, resolve=True)
     with stop_on_signals() as stop:  # SIGINT and SIGTERM alike, whatever the parent left them as

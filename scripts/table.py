@@ -1,19 +1,20 @@
 """The paper's Table 1 on a held-out recording: python scripts/table.py input=F.csv '+bundles={name: D/compensator}'."""
 import json
 import logging
+import sys
 from pathlib import Path
 
-import hydra
 from omegaconf import DictConfig, OmegaConf
 
-from gyronet.errors import exit_on_error
 from gyronet.table import PAPER_TABLE_1, table_rows, to_markdown
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # scripts/_cli.py, also when this file is run by path
+from _cli import command  # noqa: E402
 
 log = logging.getLogger(__name__)
 
 
-@hydra.main(version_base="1.3", config_path="../conf/deploy", config_name="table")
-@exit_on_error
+@command("table", "deploy")
 def main(cfg: DictConfig) -> None:
     rows = table_rows(cfg.input, OmegaConf.to_container(cfg.bundles))
     markdown = to_markdown(rows)

@@ -1,24 +1,21 @@
 """Train a drift compensator: python scripts/train.py data.path=F.csv [model=rbf|poly3|lsq] [-m hydra/sweeper=ga]."""
-import hydra
+import sys
+from pathlib import Path
+
 from hydra.core.hydra_config import HydraConfig
-from hydra.types import RunMode
 from hydra.utils import instantiate
 from omegaconf import DictConfig, OmegaConf
 
-from gyronet.errors import exit_on_error
 from gyronet.pipeline import train_run
 from gyronet.tb import make_writer
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # scripts/_cli.py, also when this file is run by path
+from _cli import command  # noqa: E402
 
-@hydra.main(version_base="1.3", config_path="../conf", config_name="train")
+
+# a bad input is one line and exit 2; in a sweep it raises, and the sweeper scores the job inf
+@command("train", schemas={"train": "gyronet.train.fit", "seed": int, "eval.paths": list, "eval.block_s": float})
 def main(cfg: DictConfig) -> float:
-    # a sweep needs failures as exceptions (the sweeper scores them inf); a single run, as one line
-    if HydraConfig.get().mode == RunMode.MULTIRUN:
-        return run(cfg)
-    return exit_on_error(run)(cfg)
-
-
-def run(cfg: DictConfig) -> float:
     data = instantiate(cfg.data)
     model = instantiate(cfg.model, n_inputs=data.n_features)
     writer = make_writer(cfg.logger.log_dir)

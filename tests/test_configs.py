@@ -3,6 +3,7 @@
 import pytest
 from hydra import compose, initialize_config_dir
 from hydra.utils import instantiate
+from omegaconf import OmegaConf
 
 from conftest import ROOT
 
@@ -28,3 +29,31 @@ def test_every_top_level_config_composes(name):
 def test_deploy_configs_compose(name):
     with initialize_config_dir(str(CONF / "deploy"), version_base="1.3"):
         assert compose(name) is not None
+
+
+# keys that name a file or folder a command writes
+OUTPUT_KEYS = ("output", "log_dir", "tb_dir", "summary", "log_file")
+
+
+def _top_level_and_deploy():
+    return [(CONF, p.stem) for p in CONF.glob("*.yaml")] + [(CONF / "deploy", p.stem) for p in (CONF / "deploy").glob("*.yaml")]
+
+
+@pytest.mark.parametrize("folder, name", _top_level_and_deploy(), ids=lambda v: getattr(v, "name", v))
+def test_every_default_output_goes_under_the_run_folder(folder, name):
+    """An output the user does not name is written under hydra.run.dir, never into the current folder."""
+    with initialize_config_dir(str(folder), version_base="1.3"):
+        cfg = compose(name)
+    container = OmegaConf.to_container(cfg, resolve=False)
+    found = []
+
+    def walk(node, key=""):
+        if isinstance(node, dict):
+            for k, v in node.items():
+                walk(v, f"{key}.{k}" if key else k)
+        elif key.rsplit(".", 1)[-1] in OUTPUT_KEYS and node not in (None, "???"):
+            found.append((key, node))
+
+    walk(container)
+    stray = [(k, v) for k, v in found if not str(v).startswith("${hydra:runtime.output_dir}/")]
+    assert stray == []

@@ -428,3 +428,70 @@ def test_a_power_of_temperature_needs_capacity_not_a_new_input(tmp_path):
     small = _diagnose(train, tmp_path / "small", n_centers=2)
     assert small["effects"] and small["effects"][0]["kind"] == "polynomial"
     assert small["effects"][0]["source"] == "temp_c"
+
+
+# --- bad configurations: one line, exit 2 (issue 10: 15 tracebacks in 91 bad inputs) ---------------
+
+@pytest.mark.parametrize("options, message", [
+    ({"alpha": -1.0}, "diagnose.alpha must be between 0 and 1, got -1.0"),
+    ({"n_shifts": 0}, "diagnose.n_shifts must be at least 1, got 0"),
+    ({"span_s": 0.0}, "diagnose.span_s must be positive, got 0.0"),
+    ({"block_s": -60.0}, "diagnose.block_s must be positive, got -60.0"),
+    ({"ridge": -1.0}, "diagnose.ridge must be null or at least 0, got -1.0"),
+    ({"candidates": {"extra": [{"kind": "nope"}]}}, "diagnose.candidates.extra: bad feature spec {'kind': 'nope'}"),
+    ({"candidates": {"extra": ["abc"]}}, "diagnose.candidates.extra: bad feature spec 'abc' (not a mapping)"),
+])
+def test_bad_options_are_refused_with_the_setting_named(options, message):
+    from gyronet.diagnose.loop import DiagnoseOptions
+    from gyronet.errors import GyronetError
+
+    with pytest.raises(GyronetError) as err:
+        DiagnoseOptions(**options)
+    assert str(err.value).startswith(message)
+
+
+@pytest.mark.parametrize("data, message", [
+    ({"features": [{"kind": "nope"}]}, "data.features: bad feature spec {'kind': 'nope'} (unknown feature kind 'nope')"),
+    ({"features": []}, "data.features is empty"),
+    ({"block_s": 0}, "data.block_s must be positive, got 0"),
+])
+def test_bad_declared_inputs_are_refused_before_any_work(tmp_path, data, message):
+    from gyronet.errors import GyronetError
+
+    with pytest.raises(GyronetError) as err:
+        diagnose({"path": str(tmp_path / "never_read.csv"), **data}, _default_model(), tmp_path)
+    assert str(err.value).startswith(message)
+
+
+BAD_CONFIGS = {
+    "alpha_text": (["diagnose.alpha=abc"], "diagnose.alpha must be a number, got 'abc'"),
+    "alpha_negative": (["diagnose.alpha=-1"], "diagnose.alpha must be between 0 and 1"),
+    "shifts_text": (["diagnose.n_shifts=abc"], "diagnose.n_shifts must be an integer"),
+    "no_shifts": (["diagnose.n_shifts=0"], "diagnose.n_shifts must be at least 1"),
+    "span_zero": (["diagnose.span_s=0"], "diagnose.span_s must be positive"),
+    "lags_text": (["diagnose.candidates.lag_tau_s=abc"], "diagnose.candidates.lag_tau_s must be a list"),
+    "extra_kind": (["diagnose.candidates.extra=[{kind: nope}]"], "unknown feature kind 'nope'"),
+    "features_kind": (["data.features=[{kind: nope}]"], "unknown feature kind 'nope'"),
+    "block_text": (["data.block_s=abc"], "data.block_s must be a number"),
+    "seed_text": (["seed=abc"], "seed must be an integer"),
+    "epochs_text": (["train.max_epochs=abc"], "train.max_epochs must be an integer"),
+    "plus_typo": (["+diagnose.alpah=0.1"], "unknown setting diagnose.alpah; did you mean diagnose.alpha?"),
+}
+
+
+@pytest.fixture(scope="module")
+def bad_config_results(tmp_path_factory, short_aux):
+    from test_commands import run_cases
+
+    work = tmp_path_factory.mktemp("bad_configs")
+    cases = [{"id": name, "script": "scripts/diagnose.py",
+              "args": [f"data.path={short_aux}", *args, f"hydra.run.dir={work / name}"]}
+             for name, (args, _) in BAD_CONFIGS.items()]
+    return run_cases(cases, work)
+
+
+@pytest.mark.parametrize("name", list(BAD_CONFIGS))
+def test_the_script_reports_a_bad_configuration_in_one_line(bad_config_results, name):
+    from test_commands import assert_one_line_error
+
+    assert_one_line_error(bad_config_results[name], BAD_CONFIGS[name][1])

@@ -4,8 +4,11 @@ from __future__ import annotations
 import json
 import math
 import os
+import signal
 import subprocess
 import sys
+import time
+import uuid
 from pathlib import Path
 
 import numpy as np
@@ -22,9 +25,10 @@ from hydra_plugins.gyronet_ga_sweeper._space import parse_search_space, tidy, to
 ROOT = Path(__file__).resolve().parents[1]
 
 # A stand-in for scripts/train.py: returns (x - 3)^2 + (y + 1)^2, writes compensator/ into
-# its output dir, logs each call, and fails or returns junk on request.
+# its output dir, logs each call, and fails, returns junk or takes its time (+sleep_s=) on request.
 APP = '''
 import os
+import time
 import hydra
 from hydra.core.hydra_config import HydraConfig
 
@@ -34,6 +38,7 @@ def main(cfg):
     out = HydraConfig.get().runtime.output_dir
     with open(cfg.calls_log, "a") as f:
         f.write(f"{cfg.x} {cfg.y}\\n")
+    time.sleep(cfg.get("sleep_s", 0))
     os.makedirs(os.path.join(out, "compensator"), exist_ok=True)
     with open(os.path.join(out, "compensator", "params.txt"), "w") as f:
         f.write(f"{cfg.x} {cfg.y}")
@@ -241,7 +246,13 @@ def test_too_many_failures_stop_the_sweep(app: Path) -> None:
 def test_resume_continues_without_redoing_generations(app: Path) -> None:
     run_app(app)
     before, n_calls = history(app), calls(app)
+    # what a killed third generation would have left: a job folder that is in no history
+    leftover = app / "sweep" / str(1 + max(e["job_idx"] for g in before["generations"] for e in g["individuals"]))
+    (leftover / "tb").mkdir(parents=True)
+    (leftover / "tb" / "events.out.tfevents.killed").write_text("")
     run_app(app, "hydra.sweeper.generations=3")
+    assert (app / "sweep" / "interrupted" / leftover.name / "tb" / "events.out.tfevents.killed").is_file()
+    assert not (leftover / "tb" / "events.out.tfevents.killed").exists() and leftover.is_dir()  # run again, clean
     after = history(app)
     assert after["generations"][:2] == before["generations"]
     new_jobs = [e for e in after["generations"][2]["individuals"] if not e["cached"]]
@@ -274,6 +285,52 @@ def test_resume_refuses_another_search_space(app: Path) -> None:
     assert proc.returncode != 0
     assert "another search space" in proc.stderr
     assert calls(app) == 0
+
+
+def _processes_with(marker: str) -> list[int]:
+    """Live processes (not zombies) whose environment holds ``marker``: a sweep and all it started."""
+    found = []
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit():
+            continue
+        try:
+            if marker.encode() not in (entry / "environ").read_bytes():
+                continue
+            state = (entry / "stat").read_text().rsplit(")", 1)[1].split()[0]
+        except OSError:  # gone meanwhile, or not ours to read
+            continue
+        if state != "Z":
+            found.append(int(entry.name))
+    return found
+
+
+@pytest.mark.skipif(not Path("/proc/self/environ").exists(), reason="reads processes from Linux /proc")
+def test_a_killed_sweep_leaves_no_worker_behind(app: Path) -> None:
+    """Issue 10 item 13: after SIGKILL of the sweep, its joblib workers went on with their jobs."""
+    marker = f"GYRONET_SWEEP_TEST={uuid.uuid4().hex}"
+    name, value = marker.split("=")
+    cmd = _command(app, ("hydra/launcher=joblib", "hydra.launcher.n_jobs=2", "+sleep_s=60"), "sweep", True)
+    sweep = subprocess.Popen(cmd, cwd=app, env={**_env(), name: value},
+                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        deadline = time.monotonic() + 90
+        while calls(app) == 0:  # a job has started (and sleeps)
+            assert sweep.poll() is None and time.monotonic() < deadline, "no job started"
+            time.sleep(0.1)
+        workers = [pid for pid in _processes_with(marker) if pid != sweep.pid]
+        assert workers, "the jobs should run in worker processes"
+        sweep.kill()
+        sweep.wait()
+        started = calls(app)
+        deadline = time.monotonic() + 5
+        while _processes_with(marker) and time.monotonic() < deadline:
+            time.sleep(0.1)
+        assert _processes_with(marker) == []
+        time.sleep(0.5)
+        assert calls(app) == started  # and no worker took another job meanwhile
+    finally:
+        for pid in _processes_with(marker):
+            os.kill(pid, signal.SIGKILL)
 
 
 def test_joblib_launcher(app: Path) -> None:

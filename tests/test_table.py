@@ -1,5 +1,6 @@
 """The paper's Table 1 on a held-out recording: rows, figures against the truth, the script."""
 import json
+import os
 import subprocess
 import sys
 
@@ -31,12 +32,17 @@ def test_rows_score_each_bundle_against_the_truth(bundle, cycle_csv):
     assert [line.split("|")[1].strip() for line in table[3:]] == list(rows)
 
 
-def test_the_script_writes_markdown_and_json(bundle, cycle_csv, tmp_path):
-    out = tmp_path / "t1.md"
-    proc = subprocess.run([sys.executable, "scripts/table.py", f"input={cycle_csv}", f"output={out}",
-                           f"+bundles={{gyronet: {bundle}}}", f"hydra.run.dir={tmp_path}"],
-                          cwd=ROOT, capture_output=True, text=True)
+def test_the_script_writes_markdown_and_json_into_its_run_folder(bundle, cycle_csv, tmp_path):
+    """Without output=, the table goes under hydra.run.dir, not into the folder the command runs in."""
+    here, run = tmp_path / "here", tmp_path / "run"
+    here.mkdir()
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")])}
+    proc = subprocess.run([sys.executable, str(ROOT / "scripts" / "table.py"), f"input={cycle_csv}",
+                           f"+bundles={{gyronet: {bundle}}}", f"hydra.run.dir={run}"],
+                          cwd=here, env=env, capture_output=True, text=True)
     assert proc.returncode == 0, proc.stderr[-2000:]
+    assert list(here.iterdir()) == []
+    out = run / "table1.md"
     figures = json.loads(out.with_suffix(".json").read_text())
     assert "gyronet" in json.dumps(figures) and "| gyronet |" in out.read_text()
 

@@ -1,5 +1,6 @@
 """Training end to end: the script, the bundle, TensorBoard event files, and held-out quality."""
 import json
+import logging
 import subprocess
 import sys
 
@@ -9,16 +10,20 @@ from omegaconf import OmegaConf
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
 from gyronet.compensator import Compensator
-from gyronet.data import load_recording, load_truth
+from gyronet.data import load_recording, load_truth, write_recording
+from gyronet.dataset import block_rmse, static_rate_dps
+from gyronet.pipeline import evaluate_paths
 from gyronet.train import lr_at, residual_report
 
 from conftest import ROOT
 
 
-def _train(tmp_path, *overrides):
+def _train(tmp_path, *overrides, console=None):
     cmd = [sys.executable, "scripts/train.py", *overrides, f"hydra.run.dir={tmp_path}", "train.progress=false"]
     proc = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True)
     assert proc.returncode == 0, proc.stderr[-3000:]
+    if console is not None:
+        console.append(proc.stdout)
     return json.loads((tmp_path / "report.json").read_text())
 
 
@@ -30,7 +35,12 @@ def test_lr_schedule_warms_up_then_decays():
 
 
 def test_train_script_writes_bundle_report_and_tensorboard(tmp_path, paper_csv, cycle_csv):
-    report = _train(tmp_path, f"data.path={paper_csv}", f"eval.paths=[{cycle_csv}]", "train.max_epochs=60")
+    console = []
+    report = _train(tmp_path, f"data.path={paper_csv}", f"eval.paths=[{cycle_csv}]", "train.max_epochs=60",
+                    console=console)
+    # the held-out figures reach the console, not only report.json
+    ratio = report["eval"][str(cycle_csv)]["truth"]["ratio_to_floor"]
+    assert f"held-out cycle.csv: residual / noise floor x={ratio['x']:.4g}, y={ratio['y']:.4g}" in console[0]
     assert {"model.pt", "meta.json"} <= {p.name for p in (tmp_path / "compensator").iterdir()}
     meta = json.loads((tmp_path / "compensator" / "meta.json").read_text())
     assert meta["feature_names"] == ["temp_c", "temp_rate_c_per_s", "temp_x_rate_c2_per_s"]
@@ -72,14 +82,45 @@ def test_models_train_and_are_deterministic_with_a_seed(paper_csv, name):
 def test_compensate_matches_live_one_sample_at_a_time(bundle, cycle_csv, tmp_path):
     out = tmp_path / "o.csv"
     proc = subprocess.run([sys.executable, "scripts/compensate.py", f"model={bundle}", f"input={cycle_csv}",
-                           f"output={out}", f"hydra.run.dir={tmp_path / 'hydra'}"], cwd=ROOT, capture_output=True,
-                          text=True)
+                           f"output={out}", f"hydra.run.dir={tmp_path / 'run'}"], cwd=ROOT, capture_output=True, text=True)
     assert proc.returncode == 0, proc.stderr
     offline = load_recording(out, required=("time_s", "gyro_x_dps")).gyro_dps
     recording = load_recording(cycle_csv)
     live = Compensator.load(bundle)
     rows = [live.process({k: v[i:i + 1] for k, v in recording.columns.items()}).rate_dps for i in range(2000)]
     np.testing.assert_allclose(np.vstack(rows), offline[:2000], rtol=0, atol=1e-9)
+
+
+def test_held_out_recordings_say_how_much_is_out_of_range_and_their_figures(bundle, cycle_csv, tmp_path, caplog):
+    """Issue 10 item 6: a held-out record partly outside the trained range used to be evaluated silently."""
+    recording = load_recording(cycle_csv)
+    hot = tmp_path / "hot.csv"  # 15 degC hotter than the record, no truth beside it
+    write_recording(hot, {**recording.columns, "temp_c": recording.temp_c + 15.0}, recording.meta)
+    low, high = json.loads((bundle / "meta.json").read_text())["temp_range_c"]
+    n_outside = int(((recording.temp_c + 15.0 < low) | (recording.temp_c + 15.0 > high)).sum())
+    assert 0 < n_outside < len(recording)
+    with caplog.at_level(logging.INFO, logger="gyronet.pipeline"):
+        results = evaluate_paths(bundle, [str(hot), str(cycle_csv)], 60.0)
+    lines = [r.getMessage() for r in caplog.records if r.name == "gyronet.pipeline"]
+    warnings = [r.getMessage() for r in caplog.records if r.levelno == logging.WARNING]
+    assert results[str(hot)]["n_out_of_range"] == n_outside
+    assert warnings == [f"held-out hot.csv: {n_outside} of {len(recording)} samples "
+                        f"({100 * n_outside / len(recording):.1f} %) outside the trained temperature range "
+                        f"[{low:.2f}, {high:.2f}] degC; the model holds its edge value there, and the figures "
+                        "below include them"]
+    # without a truth: the 60 s residual RMS about the static rate, and Allan N and B
+    rms = results[str(hot)]["residual_rms_dps"]
+    out = Compensator.load(bundle).process(load_recording(hot).columns)
+    static = static_rate_dps(recording)  # zero here: the model learnt the Earth's rate as bias
+    expected = block_rmse(recording.time_s, out.rate_dps - static, 60.0)
+    np.testing.assert_allclose([rms[a] for a in "xyz"], expected, rtol=1e-12)
+    n_x = results[str(hot)]["allan"]["compensated"]["x"]["arw_deg_rthr"]
+    assert any(line.startswith(f"held-out hot.csv: 60 s residual RMS x={rms['x']:.4g}, y={rms['y']:.4g}")
+               and f"compensated N x={n_x:.4g}" in line for line in lines), lines
+    # with a truth: residual / floor per axis
+    ratio = results[str(cycle_csv)]["truth"]["ratio_to_floor"]
+    assert any(line.startswith(f"held-out cycle.csv: residual / noise floor x={ratio['x']:.4g}, y={ratio['y']:.4g}, "
+                               f"z={ratio['z']:.4g}") for line in lines), lines
 
 
 def test_out_of_range_temperature_is_flagged(bundle, cycle_csv):

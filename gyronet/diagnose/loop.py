@@ -115,6 +115,36 @@ class DiagnoseOptions:
             self.candidates = CandidateGrid(**self.candidates)
         if self.n_folds < 2:
             raise GyronetError(f"diagnose.n_folds must be at least 2, got {self.n_folds}")
+        # (name, ok, what it must be): a bad value would end deep inside the loop, or pass nothing
+        for name, ok, must in (("alpha", 0.0 < self.alpha < 1.0, "between 0 and 1"),
+                               ("min_gain", self.min_gain >= 0.0, "at least 0"),
+                               ("confirm_gain", self.confirm_gain >= 0.0, "at least 0"),
+                               ("n_shifts", self.n_shifts >= 1, "at least 1"),
+                               ("max_effects", self.max_effects >= 0, "at least 0"),
+                               ("block_s", self.block_s > 0.0, "positive"),
+                               ("span_s", self.span_s > 0.0, "positive"),
+                               ("ridge", self.ridge is None or self.ridge >= 0.0, "null or at least 0"),
+                               ("refine_top", self.refine_top >= 1, "at least 1"),
+                               ("refine_passes", self.refine_passes >= 0, "at least 0")):
+            if not ok:
+                raise GyronetError(f"diagnose.{name} must be {must}, got {getattr(self, name)}")
+        if not self.candidates.max_tau_fraction > 0.0:
+            raise GyronetError("diagnose.candidates.max_tau_fraction must be positive, got "
+                               f"{self.candidates.max_tau_fraction}")
+        check_feature_specs(self.candidates.extra, "diagnose.candidates.extra")
+
+
+def check_feature_specs(specs: Any, where: str) -> None:
+    """Refuse a feature spec list that would fail inside feature building: not specs, or unknown kinds."""
+    if not isinstance(specs, (list, tuple)):
+        raise GyronetError(f"{where} must be a list of feature specs such as {{kind: temp}}, got {specs!r}")
+    for spec in specs:
+        try:
+            if not isinstance(spec, Mapping):
+                raise TypeError("not a mapping")
+            feature_name(spec)
+        except (KeyError, TypeError, ValueError) as err:
+            raise GyronetError(f"{where}: bad feature spec {spec!r} ({err})") from None
 
 
 @dataclass
@@ -258,6 +288,14 @@ def diagnose(data_options: Mapping[str, Any], make_model: Callable[[int], torch.
         raise GyronetError("no training data: give data.path=F.csv or data.paths=[A.csv,B.csv]")
     if not isinstance(options, DiagnoseOptions):
         options = DiagnoseOptions(**dict(options or {}))
+    if "features" in data_options:
+        check_feature_specs(data_options["features"], "data.features")
+        if not data_options["features"]:
+            raise GyronetError("data.features is empty: declare at least one input, e.g. [{kind: temp}]")
+    for name in ("block_s", "rate_tau_s"):
+        value = data_options.get(name)
+        if value is not None and not value > 0:
+            raise GyronetError(f"data.{name} must be positive, got {value}")
     if 1 / (options.n_shifts + 1) > options.alpha:
         log.warning("n_shifts=%d cannot give a p-value below alpha=%g: nothing can pass",
                     options.n_shifts, options.alpha)

@@ -30,6 +30,7 @@ from gyronet.ga import Individual, Param, next_generation, random_individual
 from ._history import HISTORY_FILE, Evaluation, Generation, History, params_key
 from ._space import parse_search_space, tidy, to_overrides
 from ._tensorboard import SweepWriter
+from ._watchdog import WatchedTask, set_aside_interrupted_jobs
 
 log = logging.getLogger(__name__)
 
@@ -111,8 +112,9 @@ class GASweeperImpl(Sweeper):
               config: DictConfig) -> None:
         self.config = config
         self.hydra_context = hydra_context
+        # a worker process of the launcher exits when this process dies, even by SIGKILL
         self.launcher = Plugins.instance().instantiate_launcher(
-            config=config, hydra_context=hydra_context, task_function=task_function)
+            config=config, hydra_context=hydra_context, task_function=WatchedTask(task_function))
         self.sweep_dir = Path(str(config.hydra.sweep.dir))
 
     def sweep(self, arguments: List[str]) -> None:
@@ -173,6 +175,9 @@ class GASweeperImpl(Sweeper):
         old.fixed_overrides, old.options = fixed, asdict(self.options)
         self.job_idx = old.next_job_idx()
         log.info("resuming %s: %d generation(s) done", path, len(old.generations))
+        assert self.config is not None
+        subdir = OmegaConf.to_container(self.config.hydra.sweep, resolve=False).get("subdir")
+        set_aside_interrupted_jobs(self.sweep_dir, self.job_idx, subdir)
         return old
 
     def _breed(self, index: int, history: History, space: List[Param]) -> List[Individual]:
