@@ -195,31 +195,35 @@ class RunsData:
 
 
 def training_data(path: str | None = None, paths: Sequence[str] | None = None, run_offsets: bool = False,
-                  val_startup_s: float = 0.0, **options: Any) -> DriftData | RunsData:
-    """``conf/data``'s target: one recording (``path``, interleaved time blocks) or several (``paths``, by run)."""
+                  val_startup_s: float = 0.0, features: list | None = None, block_s: float = 10.0,
+                  val_fraction: float = 0.2, n_blocks: int = 10, val_fold: int | None = None,
+                  val_path: str | None = None, static_rate_dps: Sequence[float] | None = None,
+                  rate_tau_s: float | None = None) -> DriftData | RunsData:
+    """``conf/data``'s target: one recording (``path``, interleaved time blocks) or several (``paths``, by run).
+
+    The options after ``val_startup_s`` are ``DriftData``'s; ``val_fraction``, ``n_blocks``,
+    ``val_fold`` and ``val_path`` apply to one recording only.
+    """
     if path is not None and paths:
         raise GyronetError("give data.path=F.csv (one recording) or data.paths=[A.csv,B.csv] (several runs), not both")
     if path is None and not paths:
         raise GyronetError("no training data: give data.path=F.csv or data.paths=[A.csv,B.csv]")
+    features = [dict(s) for s in (features or PAPER_FEATURES)]
     if path is not None or len(paths) == 1:
         if run_offsets:
             log.debug("data.run_offsets needs two or more runs: off for one recording")
-        return DriftData(path=str(path if path is not None else paths[0]), **options)
-    unknown = {k for k in options if k not in ("features", "block_s", "static_rate_dps", "rate_tau_s",
-                                               "val_fraction", "n_blocks", "val_fold", "val_path")}
-    if unknown:
-        raise GyronetError(f"data: unknown option(s) {', '.join(sorted(unknown))}")
-    if options.get("val_path"):
+        return DriftData(path=str(path if path is not None else paths[0]), features=features, block_s=block_s,
+                         val_fraction=val_fraction, n_blocks=n_blocks, val_fold=val_fold, val_path=val_path,
+                         static_rate_dps=static_rate_dps, rate_tau_s=rate_tau_s)
+    if val_path:
         raise GyronetError("data.val_path and data.paths: with several runs the held-out data are the runs "
                            "themselves (leave-one-run-out); drop data.val_path")
-    features = [dict(s) for s in options.get("features") or PAPER_FEATURES]
-    if options.get("rate_tau_s") is not None:
+    if rate_tau_s is not None:
         for spec in features:
             if spec["kind"] == "rate":
-                spec["tau_s"] = float(options["rate_tau_s"])
-    runs = load_runs([str(p) for p in paths], features, options.get("static_rate_dps"))
-    return RunsData(runs, features, options.get("block_s", 10.0), options.get("static_rate_dps"),
-                    run_offsets=run_offsets, val_startup_s=val_startup_s)
+                spec["tau_s"] = float(rate_tau_s)
+    runs = load_runs([str(p) for p in paths], features, static_rate_dps)
+    return RunsData(runs, features, block_s, static_rate_dps, run_offsets=run_offsets, val_startup_s=val_startup_s)
 
 
 def fit_by_run(model: nn.Module, data: RunsData, optim: Callable | None = None, seed: int = 0, writer: Any = None,

@@ -1,21 +1,23 @@
 """The real-data table, each run held out in turn: python scripts/campaign_table.py 'runs=[A.csv,B.csv]' output=T.md."""
 import json
 import logging
+import sys
 from pathlib import Path
 
-import hydra
 from hydra.utils import instantiate
 from omegaconf import DictConfig, OmegaConf
 
+from gyronet.atomic import atomic_output
 from gyronet.campaign import held_out_table, to_markdown
-from gyronet.errors import exit_on_error
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # scripts/_cli.py, also when this file is run by path
+from _cli import command  # noqa: E402
 
 log = logging.getLogger(__name__)
 MODEL_CONF = Path(__file__).resolve().parents[1] / "conf" / "model"
 
 
-@hydra.main(version_base="1.3", config_path="../conf", config_name="campaign")
-@exit_on_error
+@command("campaign", schemas={"train": "gyronet.train.fit", "seed": int}, required=("runs",))
 def main(cfg: DictConfig) -> None:
     models = {}
     for name in cfg.models:
@@ -26,8 +28,10 @@ def main(cfg: DictConfig) -> None:
     markdown = to_markdown(table)
     output = Path(cfg.output)
     output.parent.mkdir(parents=True, exist_ok=True)
-    output.write_text(markdown)
-    output.with_suffix(".json").write_text(json.dumps(table, indent=2) + "\n")
+    with atomic_output(output) as tmp:
+        tmp.write_text(markdown)
+    with atomic_output(output.with_suffix(".json")) as tmp:
+        tmp.write_text(json.dumps(table, indent=2) + "\n")
     log.info("held-out runs:\n%s", markdown)
 
 

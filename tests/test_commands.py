@@ -231,7 +231,7 @@ def test_help_and_show_config_still_work(results):
     assert results["train-help"]["code"] == 0, results["train-help"]["stderr"]
     assert "== Configuration groups ==" in results["train-help"]["stdout"]
     shown = results["train-cfg_job"]
-    assert shown["code"] == 0 and "_target_: gyronet.dataset.DriftData" in shown["stdout"], shown["stderr"]
+    assert shown["code"] == 0 and "_target_: gyronet.runs.training_data" in shown["stdout"], shown["stderr"]
 
 
 def test_good_runs_and_multiruns_still_work(results):
