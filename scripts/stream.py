@@ -19,7 +19,7 @@ def main(cfg: DictConfig) -> None:
                    LpBusLayout(**options["lpbus"]), options["max_samples"], options["duration_s"],
                    float(options["allan_every_s"]), options["tb_dir"], options["summary"],
                    float(options["read_timeout_s"]), options["reconnect"], options["clock"], stop=stop,
-                   startup=options.get("startup"))
+                   startup=options.get("startup"), resample=bool(options.get("resample", False)))
 
 
 if __name__ == "__main__":

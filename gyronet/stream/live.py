@@ -42,7 +42,7 @@ def run_stream(bundle_dir: str | Path, port: str, output: str | Path, protocol: 
                reconnect: Mapping[str, float | bool | None] | None = None,
                clock: Mapping[str, float | None] | None = None,
                stop: Callable[[], bool] | None = None,
-               startup: Mapping[str, Any] | None = None) -> dict:
+               startup: Mapping[str, Any] | None = None, resample: bool = False) -> dict:
     """``stream.py``: compensate a live stream until told to stop; return the summary.
 
     Parameters
@@ -75,11 +75,15 @@ def run_stream(bundle_dir: str | Path, port: str, output: str | Path, protocol: 
         Polled between reads; True stops the run as Ctrl-C does (``stop_on_signals``).
     startup
         ``Compensator.use_startup`` options (``still_s``, ``motion_dps``, ``static_rate_dps``).
+    resample
+        As in ``compensate.py``: the stream's rate, measured over its first ``RATE_PROBE_SAMPLES``
+        samples (held until then), must be within 5 % of the bundle's ``fs_hz`` unless true.
 
     Raises
     ------
     PortError, BundleError
-        Before anything is written: a port that cannot be opened, a bundle that does not fit.
+        Before any sample is written: a port that cannot be opened, a bundle that does not fit
+        (its columns, or its rate against the stream's).
     OutputError
         When the output cannot be written (a full disk): after the port is closed and the
         summary written (or logged as impossible); the output ends with a complete line.
@@ -115,20 +119,32 @@ def run_stream(bundle_dir: str | Path, port: str, output: str | Path, protocol: 
     log.info("streaming %s (%s, %d baud) through %s into %s", port, protocol, baud, bundle_dir, output)
     items = read_samples(opened, parser, url=port, baud=baud, timeout_s=read_timeout_s, should_stop=should_stop,
                          **options)
-    try:
-        for item in items:
-            counter.add(item)
-            if not isinstance(item, Sample):
-                log.log(logging.WARNING if counter.counts[item.reason] == 1 else logging.DEBUG, "fault: %s", item)
-                continue
-            _compensate(compensator, item, out, allan, port, state)
+    gate = RateGate(compensator, resample, f"{port}: the stream",
+                    RATE_PROBE_SAMPLES if max_samples is None else min(RATE_PROBE_SAMPLES, max_samples))
+
+    def write(samples: list[Sample]) -> bool:
+        """Compensate and write; True once ``max_samples`` rows are out."""
+        for sample in samples:
+            _compensate(compensator, sample, out, allan, port, state)
             if max_samples is not None and out.n_rows >= max_samples:
-                stopped = "max_samples"
-                break
-        else:
-            stopped = "interrupted" if external_stop() else "duration" if should_stop() else "port_gone"
-    except KeyboardInterrupt:
-        stopped = "interrupted"
+                return True
+        return False
+
+    try:
+        try:
+            for item in items:
+                counter.add(item)
+                if not isinstance(item, Sample):
+                    log.log(logging.WARNING if counter.counts[item.reason] == 1 else logging.DEBUG, "fault: %s", item)
+                    continue
+                if write(gate.push(item)):
+                    stopped = "max_samples"
+                    break
+            else:
+                stopped = "interrupted" if external_stop() else "duration" if should_stop() else "port_gone"
+        except KeyboardInterrupt:
+            stopped = "interrupted"
+        write(gate.flush())  # the samples held while the rate was measured
     except OutputError as err:
         stopped, failure = "output_failed", err
     finally:
@@ -149,6 +165,39 @@ def run_stream(bundle_dir: str | Path, port: str, output: str | Path, protocol: 
     if failure is not None:
         raise OutputError(f"{failure}{summary_note}")
     return summary
+
+
+RATE_PROBE_SAMPLES = 20  # samples held at the start to measure the stream's rate (a median of their intervals)
+
+
+class RateGate:
+    """Hold a stream's first samples until its rate is known, then check it against the bundle's.
+
+    ``compensate.py`` checks a file's rate before its first sample; the live path cannot know the
+    rate before it has seen a few, so it holds them (``n_samples``: a 2 s delay at 10 Hz, once) and
+    then releases them in order. The median interval ignores lost frames and clock restarts.
+    """
+
+    def __init__(self, compensator: Compensator, resample: bool, source: str, n_samples: int = RATE_PROBE_SAMPLES):
+        self.compensator, self.resample, self.source = compensator, bool(resample), source
+        self.n_samples = max(1, int(n_samples))
+        self.held: list[Sample] | None = []  # None once the rate is checked
+
+    def push(self, sample: Sample) -> list[Sample]:
+        """The samples ready to compensate after ``sample`` arrived."""
+        if self.held is None:
+            return [sample]
+        self.held.append(sample)
+        return self.flush() if len(self.held) >= self.n_samples else []
+
+    def flush(self) -> list[Sample]:
+        """Check the rate on what is held (if two samples or more) and release them."""
+        held, self.held = self.held or [], None
+        intervals_s = [b.time_s - a.time_s for a, b in zip(held, held[1:]) if not b.new_segment and b.time_s > a.time_s]
+        if intervals_s:
+            fs_hz = 1.0 / float(np.median(intervals_s))
+            self.compensator.use_input_rate(fs_hz, self.resample, f"{self.source} (over its first {len(held)} samples)")
+        return held
 
 
 def _compensate(compensator: Compensator, sample: Sample, out: LiveWriter, allan: LiveAllan | None,
