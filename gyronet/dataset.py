@@ -122,8 +122,27 @@ def to_blocks(time_s: np.ndarray, features: np.ndarray, target: np.ndarray, bloc
                   block_means(time_s, time_s, block_s))
 
 
+class TrainingData:
+    """What every kind of training data says about its features (one recording, or several runs)."""
+
+    features: list
+    fs_hz: float
+
+    @property
+    def n_features(self) -> int:
+        return len(self.features)
+
+    @property
+    def feature_names(self) -> list[str]:
+        return FeatureExtractor(self.features, self.fs_hz).names
+
+    @property
+    def axes(self) -> tuple[str, ...]:
+        return AXES
+
+
 @dataclass
-class DriftData:
+class DriftData(TrainingData):
     """A recording ready for training: features, targets, train/validation blocks.
 
     Parameters
@@ -219,17 +238,6 @@ class DriftData:
         y = recording.gyro_dps - static_rate_dps(recording, self.static_rate_dps)
         return x, y
 
-    @property
-    def n_features(self) -> int:
-        return len(self.features)
-
-    @property
-    def feature_names(self) -> list[str]:
-        return FeatureExtractor(self.features, self.fs_hz).names
-
-    @property
-    def axes(self) -> tuple[str, ...]:
-        return AXES
 
 
 def block_rmse(time_s: np.ndarray, residual: np.ndarray, block_s: float = 60.0) -> np.ndarray:
@@ -245,5 +253,5 @@ def block_rmse(time_s: np.ndarray, residual: np.ndarray, block_s: float = 60.0) 
     return np.sqrt(np.mean(means**2, axis=0))
 
 
-__all__ = ["Blocks", "DriftData", "block_rmse", "check_features_present", "check_physical", "featurize",
+__all__ = ["Blocks", "DriftData", "TrainingData", "block_rmse", "check_features_present", "check_physical", "featurize",
            "static_rate_dps", "to_blocks", "time_blocks"]

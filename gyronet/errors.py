@@ -4,7 +4,7 @@ from __future__ import annotations
 import functools
 import logging
 import sys
-from typing import Callable, NoReturn, TypeVar
+from typing import Any, Callable, NoReturn, TypeVar
 
 log = logging.getLogger(__name__)
 
@@ -29,20 +29,25 @@ class ConfigError(GyronetError):
     """A setting that does not exist, has no value, or cannot be read."""
 
 
-def user_error(err: BaseException) -> GyronetError | None:
-    """The GyronetError behind ``err``: itself, or the first one along its ``raise ... from`` chain.
-
-    Libraries that call our code (Hydra's ``instantiate``) wrap what it raises; the user still
-    needs our message, not the wrapper's.
-    """
+def in_chain(err: BaseException, kind: type) -> Any:
+    """The first exception of ``kind`` along ``err``'s ``raise ... from`` / context chain (``err`` first), or None."""
     seen: set[int] = set()
     current: BaseException | None = err
     while current is not None and id(current) not in seen:
-        if isinstance(current, GyronetError):
+        if isinstance(current, kind):
             return current
         seen.add(id(current))
         current = current.__cause__ or current.__context__
     return None
+
+
+def user_error(err: BaseException) -> GyronetError | None:
+    """The GyronetError behind ``err``: itself, or the first one along its chain.
+
+    Libraries that call our code (Hydra's ``instantiate``) wrap what it raises; the user still
+    needs our message, not the wrapper's.
+    """
+    return in_chain(err, GyronetError)
 
 
 def one_line(message: str) -> str:

@@ -22,10 +22,11 @@ import numpy as np
 from torch import nn
 
 from gyronet.data import Recording
-from gyronet.dataset import (MIN_TEMP_SPAN_C, MIN_TRAIN_BLOCKS, Blocks, DriftData, _features_by_key, _file_key,
-                             check_features_present, check_physical, load_cached, static_rate_dps, to_blocks)
+from gyronet.dataset import (MIN_TEMP_SPAN_C, MIN_TRAIN_BLOCKS, Blocks, DriftData, TrainingData, _features_by_key,
+                             _file_key, check_features_present, check_physical, load_cached, static_rate_dps,
+                             to_blocks)
 from gyronet.errors import GyronetError
-from gyronet.features import PAPER_FEATURES, FeatureExtractor
+from gyronet.features import PAPER_FEATURES
 from gyronet.run_offsets import RunOffsets
 
 log = logging.getLogger(__name__)
@@ -110,7 +111,7 @@ def _stack(runs: Sequence[Run], block_s: float) -> RunBlocks:
                      np.concatenate([np.full(len(b), i, dtype=np.int64) for i, b in enumerate(parts)]))
 
 
-class RunsData:
+class RunsData(TrainingData):
     """Several runs as training data: ``fit`` trains on every run but ``held_out`` and validates on it.
 
     Parameters
@@ -171,17 +172,6 @@ class RunsData:
     def n_runs(self) -> int:
         return len(self.runs)
 
-    @property
-    def n_features(self) -> int:
-        return len(self.features)
-
-    @property
-    def feature_names(self) -> list[str]:
-        return FeatureExtractor(self.features, self.fs_hz).names
-
-    @property
-    def axes(self) -> tuple[str, ...]:
-        return ("x", "y", "z")
 
     def bundle_meta(self) -> dict[str, Any]:
         """``meta.json`` fields of a multi-run training: every run, a checksum over them, the fitted offsets."""

@@ -33,7 +33,7 @@ from omegaconf import DictConfig, ListConfig, OmegaConf
 from omegaconf.errors import (ConfigAttributeError, ConfigKeyError, MissingMandatoryValue,
                               OmegaConfBaseException)
 
-from gyronet.errors import ConfigError, fail, one_line, user_error
+from gyronet.errors import ConfigError, fail, in_chain, one_line, user_error
 
 log = logging.getLogger(__name__)
 
@@ -269,7 +269,7 @@ def user_message(err: BaseException) -> str | None:
     found = user_error(err)
     if found is not None:
         return str(found)
-    missing = _in_chain(err, MissingMandatoryValue)
+    missing = in_chain(err, MissingMandatoryValue)
     if missing is not None:
         key = missing.full_key or missing.key
         return f"no value for {key}: add {key}=..." if key else one_line(missing.msg or str(missing))
@@ -308,17 +308,6 @@ def user_message(err: BaseException) -> str | None:
 _USER_ERRNOS = {errno.ENOSPC, errno.EDQUOT, errno.EACCES, errno.EROFS, errno.EPERM}
 
 
-def _in_chain(err: BaseException, kind: type) -> Any:
-    seen: set[int] = set()
-    current: BaseException | None = err
-    while current is not None and id(current) not in seen:
-        if isinstance(current, kind):
-            return current
-        seen.add(id(current))
-        current = current.__cause__ or current.__context__
-    return None
-
-
 def _omegaconf_text(err: OmegaConfBaseException) -> str:
     first = (getattr(err, "msg", None) or str(err)).splitlines()[0].strip()
     key = getattr(err, "full_key", None)
@@ -339,7 +328,7 @@ def _missing_option(err: MissingConfigException) -> str:
 
 def _unknown_override(err: ConfigCompositionException) -> str | None:
     """``data.pth=x``: the key does not exist (Hydra would suggest ``+data.pth=x``, which then fails)."""
-    cause = _in_chain(err, (ConfigAttributeError, ConfigKeyError))
+    cause = in_chain(err, (ConfigAttributeError, ConfigKeyError))
     if cause is None:
         return None
     named = re.search(r"Could not override '([^']+)'", str(err))
