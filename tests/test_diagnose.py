@@ -495,3 +495,13 @@ def test_the_script_reports_a_bad_configuration_in_one_line(bad_config_results, 
     from test_commands import assert_one_line_error
 
     assert_one_line_error(bad_config_results[name], BAD_CONFIGS[name][1])
+
+
+def test_refinements_never_repeat_a_spec():
+    """A fine step on a short time constant rounds back to itself (10 s * 2**0.0625 -> 10 s): no repeats."""
+    from gyronet.diagnose.candidates import refinements
+
+    for tau_s in (3.0, 10.0, 1200.0):
+        trial = refinements({"kind": "lag", "source": "temp_c", "tau_s": tau_s}, (-0.0625, 0.0625))
+        values = [spec["tau_s"] for spec in trial]
+        assert tau_s not in values and len(set(values)) == len(values), values

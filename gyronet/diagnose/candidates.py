@@ -187,10 +187,12 @@ def refinements(spec: Mapping[str, Any], steps: Sequence[float] = (-0.5, -0.25, 
     key = "tau_s" if spec.get("tau_s") else "width" if "width" in spec else None
     if key is None:
         return []
-    out = []
+    out, seen = [], {float(spec[key])}
     for step in steps:
         value = float(np.round(float(spec[key]) * 2.0**step, 3 if key == "width" else 0))
-        if value > 0 and (key == "width" or value <= longest_s):
+        # a fine step can round back to the spec itself or to its other neighbour: skip repeats
+        if value > 0 and value not in seen and (key == "width" or value <= longest_s):
+            seen.add(value)
             out.append({**spec, key: value})
     return out
 
