@@ -1,6 +1,7 @@
 """Start-up offsets: the run's turn-on bias from its first still seconds, offline and live alike."""
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -90,7 +91,8 @@ def test_a_short_record_and_bad_settings_are_user_errors():
 
 def _compensate(bundle, csv, out, *overrides):
     return subprocess.run([sys.executable, "scripts/compensate.py", f"model={bundle}", f"input={csv}", f"output={out}",
-                           *overrides], cwd=ROOT, capture_output=True, text=True)
+                           f"hydra.run.dir={Path(out).parent / 'hydra'}", *overrides], cwd=ROOT, capture_output=True,
+                          text=True)
 
 
 def test_compensate_script_takes_startup_and_refuses_motion_in_one_line(bundle, biased_csv, tmp_path):
