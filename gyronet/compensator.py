@@ -1,9 +1,10 @@
 """A loaded bundle, run causally: the one code path for offline files and live streams.
 
 ``Compensator.process`` takes the next samples (any number, from one to a whole recording),
-computes the causal features, evaluates the TorchScript model, subtracts the drift and, when the
-bundle has one, runs the Kalman stage. Calling it once on a recording or once per sample gives
-the same numbers.
+computes the causal features, evaluates the TorchScript model, subtracts the drift, removes the
+run's start-up offset (``use_startup``) and, when the bundle has one, runs the Kalman stage.
+Impossible inputs are flagged (``bad_input``) and kept out of every state. Calling it once on a
+recording or once per sample gives the same numbers.
 """
 from __future__ import annotations
 
