@@ -121,30 +121,18 @@ def test_compensate_script_takes_startup_and_refuses_motion_in_one_line(bundle, 
 
 def test_live_stream_with_startup_equals_offline(bundle, biased_csv, tmp_path):
     """stream.py's loop (in-process, over a pty) with startup.still_s gives the offline numbers."""
-    import threading
-
     import pandas as pd
 
     from gyronet.data import GYRO_COLUMNS, write_recording
     from gyronet.stream import FaultPlan, plan_stream
     from gyronet.stream.live import run_stream
-    from gyronet.stream.pty_sensor import PtySensor, play
+    from gyronet.stream.pty_sensor import play_in_thread
 
     recording = load_recording(biased_csv).slice(slice(0, 300))
     short = write_recording(tmp_path / "short.csv", recording.columns, recording.meta)
     plan = plan_stream(recording.columns, "csv", FaultPlan(seed=1))
     link = tmp_path / "sensor"
-    sensor = PtySensor(link)
-
-    def emulate():
-        try:
-            play(plan, sensor, speed=0, reader_timeout_s=20, port_down_s=0.2)
-        finally:
-            sensor.close()
-            sensor.remove_link()
-
-    thread = threading.Thread(target=emulate, daemon=True)
-    thread.start()
+    thread = play_in_thread(plan, link)
     run_stream(bundle, str(link), tmp_path / "live.csv", protocol="csv", allan_every_s=0,
                reconnect={"backoff_s": 0.05, "max_backoff_s": 0.2, "give_up_s": 0.5},
                startup={"still_s": 60, "motion_dps": 0.5})

@@ -84,28 +84,16 @@ def assert_matches_offline(output: pd.DataFrame, time_s, temp_c, out) -> None:
 
 def test_run_stream_in_process_equals_offline(bundle, short_recording, tmp_path):
     """The live loop without the subprocesses: fast enough for every test run."""
-    import threading
-
     from gyronet.stream import FaultPlan, plan_stream
     from gyronet.stream.live import run_stream
-    from gyronet.stream.pty_sensor import PtySensor, play
+    from gyronet.stream.pty_sensor import play_in_thread
 
     recording = load_recording(short_recording)
     faults = FaultPlan(garbage_rate=0.05, corrupt_rate=0.03, truncate_rate=0.03, nan_rate=0.02,
                        out_of_range_every=37, out_of_range_temp_c=OUT_OF_RANGE_TEMP_C, drop_port_at_s=(80.0,), seed=9)
     plan = plan_stream(recording.columns, "lpbus", faults)
     link = tmp_path / "sensor"
-    sensor = PtySensor(link)
-
-    def emulate():
-        try:
-            play(plan, sensor, speed=0, reader_timeout_s=20, port_down_s=0.2)
-        finally:
-            sensor.close()
-            sensor.remove_link()
-
-    thread = threading.Thread(target=emulate, daemon=True)
-    thread.start()
+    thread = play_in_thread(plan, link)
     summary = run_stream(bundle, str(link), tmp_path / "live.csv", allan_every_s=60, tb_dir=tmp_path / "tb",
                          summary_path=tmp_path / "summary.json",
                          reconnect={"backoff_s": 0.05, "max_backoff_s": 0.2, "give_up_s": 0.5,
@@ -423,24 +411,11 @@ def corrupt_lines(lines: list[bytes], names: list[str], n_corrupt: int, seed: in
 
 def play_lines(link: Path, preamble: bytes, lines: list[bytes]):
     """A thread that plays these lines into a pty at ``link`` as fast as the reader takes them."""
-    import threading
-
     from gyronet.stream.emulator import Event, StreamPlan
-    from gyronet.stream.pty_sensor import PtySensor, play
+    from gyronet.stream.pty_sensor import play_in_thread
 
     plan = StreamPlan([Event(0.0, b"".join(lines[i:i + 64])) for i in range(0, len(lines), 64)], preamble)
-    sensor = PtySensor(link)
-
-    def emulate():
-        try:
-            play(plan, sensor, speed=0, reader_timeout_s=20)
-        finally:
-            sensor.close()
-            sensor.remove_link()
-
-    thread = threading.Thread(target=emulate, daemon=True)
-    thread.start()
-    return thread
+    return play_in_thread(plan, link)
 
 
 @pytest.mark.parametrize("n_samples", [3000, pytest.param(20000, marks=pytest.mark.slow)])
@@ -472,26 +447,14 @@ def test_readme_emulator_example_with_lost_frames_equals_offline_and_stays_bound
     intact record's. Today the lost frames make dT/dt diverge (the feature extractor, offline and
     live alike: 10x the intact residual here, 2e6 deg/s at 375 s on the README's record); this
     test waits for that fix."""
-    import threading
-
     from gyronet.stream import FaultPlan, plan_stream
     from gyronet.stream.live import run_stream
-    from gyronet.stream.pty_sensor import PtySensor, play
+    from gyronet.stream.pty_sensor import play_in_thread
 
     recording = load_recording(paper_csv).slice(slice(0, 20000))
     plan = plan_stream(recording.columns, "lpbus", FaultPlan(garbage_rate=0.01, corrupt_rate=0.01,
                                                              drop_port_at_s=(600.0,), seed=0))
-    sensor = PtySensor(tmp_path / "sensor")
-
-    def emulate():
-        try:
-            play(plan, sensor, speed=0, reader_timeout_s=20, port_down_s=0.2)
-        finally:
-            sensor.close()
-            sensor.remove_link()
-
-    thread = threading.Thread(target=emulate, daemon=True)
-    thread.start()
+    thread = play_in_thread(plan, tmp_path / "sensor")
     summary = run_stream(bundle, str(tmp_path / "sensor"), tmp_path / "live.csv", allan_every_s=60,
                          tb_dir=tmp_path / "tb",
                          reconnect={"wait_at_start": True, "backoff_s": 0.05, "max_backoff_s": 0.2, "give_up_s": 0.5})
@@ -587,26 +550,14 @@ def test_stream_py_on_a_full_disk_says_so_in_one_line(bundle, paper_csv, tmp_pat
 
 
 def test_emulated_replug_with_a_restarted_clock_through_a_pty(bundle, short_recording, tmp_path):
-    import threading
-
     from gyronet.stream import FaultPlan, plan_stream
     from gyronet.stream.live import run_stream
-    from gyronet.stream.pty_sensor import PtySensor, play
+    from gyronet.stream.pty_sensor import play_in_thread
 
     recording = load_recording(short_recording)
     plan = plan_stream(recording.columns, "lpbus", FaultPlan(garbage_rate=0.03, corrupt_rate=0.03,
                                                              restart_clock_at_s=(120.0,), seed=2))
-    sensor = PtySensor(tmp_path / "sensor")
-
-    def emulate():
-        try:
-            play(plan, sensor, speed=0, reader_timeout_s=20, port_down_s=0.2)
-        finally:
-            sensor.close()
-            sensor.remove_link()
-
-    thread = threading.Thread(target=emulate, daemon=True)
-    thread.start()
+    thread = play_in_thread(plan, tmp_path / "sensor")
     summary = run_stream(bundle, str(tmp_path / "sensor"), tmp_path / "live.csv", allan_every_s=0,
                          reconnect={"wait_at_start": True, "backoff_s": 0.05, "give_up_s": 0.5})
     thread.join(10)

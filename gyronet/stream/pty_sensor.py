@@ -21,6 +21,7 @@ import logging
 import os
 import struct
 import termios
+import threading
 import time
 import tty
 from pathlib import Path
@@ -151,6 +152,24 @@ def play(plan: StreamPlan, sensor: PtySensor, speed: float = 1.0, reader_timeout
             sensor.write(event.data)
     sensor.drain(drain_timeout_s)
     return len(plan.events)
+
+
+
+def play_in_thread(plan: StreamPlan, link: str | Path, **play_options) -> threading.Thread:
+    """Play ``plan`` into a new pseudo-terminal at ``link`` from a daemon thread (tests, in-process
+    benchmarks); the port is closed and its link removed when the plan ends."""
+    sensor = PtySensor(link)
+
+    def emulate() -> None:
+        try:
+            play(plan, sensor, **{"speed": 0, "reader_timeout_s": 20, "port_down_s": 0.2, **play_options})
+        finally:
+            sensor.close()
+            sensor.remove_link()
+
+    thread = threading.Thread(target=emulate, daemon=True)
+    thread.start()
+    return thread
 
 
 def _drop(sensor: PtySensor, plan: StreamPlan, reader_timeout_s: float, port_down_s: float,
