@@ -352,8 +352,8 @@ def test_fuzzed_recordings_are_refused_in_one_line_or_read_exactly(tmp_path):
 
 @pytest.mark.slow
 def test_fuzzed_recordings_larger_budget(tmp_path):
-    outcomes = _run(tmp_path, 3000)
-    assert outcomes["refused"] > 100 and outcomes["accepted"] > 100, outcomes
+    outcomes = _run(tmp_path, 1200)
+    assert outcomes["refused"] > 40 and outcomes["accepted"] > 40, outcomes
 
 
 def test_every_variant_without_damage_is_read_as_written(tmp_path):
