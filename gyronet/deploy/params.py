@@ -220,8 +220,12 @@ def params_text(rows: list[tuple[str, float | int, int]], stack: str, vehicle_id
 
 def read_params(path: str | Path) -> dict[str, float]:
     """Name -> value from a .params file (QGroundControl's five tab-separated columns); bad lines are errors."""
+    try:
+        text = Path(path).read_text()
+    except (OSError, UnicodeDecodeError) as err:
+        raise GyronetError(f"{path}: cannot be read as a .params file ({getattr(err, 'strerror', None) or err})") from None
     values = {}
-    for number, line in enumerate(Path(path).read_text().splitlines(), 1):
+    for number, line in enumerate(text.splitlines(), 1):
         if not line.strip() or line.lstrip().startswith("#"):
             continue
         fields = line.split("\t")
