@@ -20,7 +20,9 @@ def main(cfg: DictConfig) -> None:
     if cfg.format == "c":
         try:
             from gyronet.deploy.c_export import write_c
-        except ImportError:
+        except ModuleNotFoundError as err:
+            if err.name != "gyronet.deploy.c_export":
+                raise
             raise ConfigError("format=c needs gyronet.deploy.c_export, which this install lacks") from None
         summary = write_c(Path(cfg.model), Path(cfg.output))
         print("\n".join(f"{key}: {value}" for key, value in summary.items()))

@@ -261,6 +261,11 @@ def export_params(bundle_dir: str | Path, output: str | Path, stack: str = "px4"
 
     if stack not in ("px4", "ardupilot"):
         raise GyronetError(f"parameters are written for px4 or ardupilot, not {stack!r}")
+    if Path(output).suffix == ".json":
+        raise GyronetError(f"output={output}: the cubic and its error go to <output>.json beside the .params file; "
+                           "name the parameter file F.params")
+    if grid_points < 8:
+        raise GyronetError(f"grid_points must be at least 8 to fit and check a cubic, got {grid_points}")
     fit = bundle_cubic(bundle_dir, grid_points)
     if stack == "px4":
         rows, name = px4_rows(fit.cubic, instance, device_id), "PX4 Pro"
