@@ -151,19 +151,20 @@ def _reference_module():
     return module
 
 
-def test_px4_fit_equals_px4s_own_script_on_the_same_ulog(tmp_path):
+@pytest.mark.parametrize("case", sorted(REFERENCE["cases"]))
+def test_px4_fit_equals_px4s_own_script_on_the_same_ulog(tmp_path, case):
     """PX4's process_sensor_caldata.py, run unmodified (px4_reference.json says how), against model=px4."""
     pytest.importorskip("pyulog")
     from gyronet.importers.ulog import import_ulog
 
-    reference = _reference_module()
-    path = reference.write_caldata_ulog(tmp_path / "caldata.ulg", REFERENCE["generator"])
-    assert reference.sha256(path) == REFERENCE["ulog_sha256"], "the generator no longer writes the fixture's ULog"
+    reference, fixture = _reference_module(), REFERENCE["cases"][case]
+    path = reference.write_caldata_ulog(tmp_path / "caldata.ulg", fixture["generator"])
+    assert reference.sha256(path) == fixture["ulog_sha256"], "the generator no longer writes the fixture's ULog"
     recording = import_ulog(path, accel=False)
     x, y = _tensor(recording.temp_c[:, None]), _tensor(recording.gyro_dps)
     grid = np.linspace(recording.temp_c.min() - 5, recording.temp_c.max() + 5, 1001)
     for name, resample in (("default", True), ("no_resample", False)):
-        px4 = REFERENCE[name]
+        px4 = fixture[name]
         model = Px4Cubic(1, resample=resample)
         model.fit_closed_form(x, y)
         assert (float(model.temp_min_c), float(model.temp_max_c), float(model.temp_ref_c)) == (
@@ -173,7 +174,7 @@ def test_px4_fit_equals_px4s_own_script_on_the_same_ulog(tmp_path):
         expected = np.vander(delta, 4, increasing=True) @ (np.array(px4["coef_rad_s"]) * 180 / np.pi)
         ours = model(_tensor(grid[:, None])).numpy()
         assert np.abs(ours - expected).max() < 1e-6, name
-    # and poly3 is neither: no median filter (the log has spikes), every sample counted
+    # and poly3 is neither: no median filter (the logs have spikes), every sample counted
     poly3 = TempPolynomial(1)
     poly3.fit_closed_form(x, y)
     assert np.abs(poly3(_tensor(grid[:, None])).numpy() - expected).max() > 1e-3

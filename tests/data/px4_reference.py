@@ -1,11 +1,13 @@
-"""A thermal-calibration ULog with a known drift, and PX4's own script's answer on it (px4_reference.json).
+"""Thermal-calibration ULogs with a known drift, and PX4's own script's answer on them (px4_reference.json).
 
 The ULog is written with pyulog: a tiny seed log gives pyulog the ``sensor_gyro`` and
 ``sensor_baro`` formats (PX4's ``process_sensor_caldata.py`` needs a baro), and its data are then
 replaced by the samples below and written back with ``ULog.write_ulog``. The board warms from 2 to
 42 degC at 1 degC/min with 8-minute dwells at 15 and 30 degC, the temperature quantised to
 1/16 degC as IMU drivers report it (so many samples sit exactly on PX4's bin edges); the bias is a
-cubic plus a knee, with white noise and a few spikes for the median filter.
+cubic plus a knee, with white noise and a few spikes for the median filter. A second case reports
+0.01 degC steps over -7.1 .. 33.3 degC, where only PX4's float32 arithmetic puts every sample in
+PX4's bin (``CASES``).
 
 Regenerate the fixture (PX4's script run unmodified; it needs pyulog, scipy, matplotlib):
 
@@ -28,6 +30,11 @@ import numpy as np
 GENERATOR = {"seed": 14, "fs_hz": 5.0, "start_c": 2.0, "stop_c": 42.0, "rate_c_per_min": 1.0,
              "dwells_c": [15.0, 30.0], "dwell_s": 480.0, "quantum_c": 0.0625, "noise_rad_s": 0.002,
              "n_spikes": 40, "device_id": 2359306}
+# the cases of the fixture: the first as above; the second reports 0.01 degC steps over -7.1 .. 33.3 degC,
+# where computing the bins in float64 instead of PX4's float32 moves the curve by 3e-5 deg/s
+CASES = {"quantum_1_16": GENERATOR,
+         "quantum_0_01": {**GENERATOR, "seed": 6, "start_c": -7.1, "stop_c": 33.3, "quantum_c": 0.01,
+                          "dwells_c": [0.0, 20.0]}}
 SCRIPT_COMMIT = "af44da25f0fcbc597150c252d47872439160eb0e"
 
 _GYRO = ("sensor_gyro:uint64_t timestamp;uint64_t timestamp_sample;uint32_t device_id;float x;float y;float z;"
@@ -115,34 +122,39 @@ def read_params(path: str | os.PathLike) -> dict[str, float]:
 
 
 def gyro0(params: dict[str, float]) -> dict:
-    """TC_G0_*: the temperatures and, per axis, the coefficients X0..X3 (rad/s per degC^k)."""
-    return {"TMIN": params["TC_G0_TMIN"], "TMAX": params["TC_G0_TMAX"], "TREF": params["TC_G0_TREF"],
-            "ID": int(params["TC_G0_ID"]),
+    """TC_G0_*: the temperatures and, per axis, the coefficients X0..X3 (rad/s per degC^k).
+
+    The script writes TMIN, TMAX, TREF as numpy float32 (the shortest text of the float32): they
+    are read back as float32, which recovers them exactly.
+    """
+    temps = {k: float(np.float32(params[f"TC_G0_{k}"])) for k in ("TMIN", "TMAX", "TREF")}
+    return {**temps, "ID": int(params["TC_G0_ID"]),
             "coef_rad_s": [[params[f"TC_G0_X{k}_{axis}"] for axis in range(3)] for k in range(4)]}
 
 
 def main(script: str, out: str) -> None:
     from importlib.metadata import version
 
-    results = {}
+    cases = {}
     with tempfile.TemporaryDirectory() as tmp:
-        log_path = write_caldata_ulog(Path(tmp) / "caldata.ulg")
-        for name, extra in (("default", []), ("no_resample", ["--no_resample"])):
-            env = {**os.environ, "MPLBACKEND": "Agg"}
-            subprocess.run([sys.executable, script, str(log_path), *extra], check=True, env=env, cwd=tmp,
-                           stdout=subprocess.DEVNULL)
-            results[name] = gyro0(read_params(str(log_path) + ".params"))
-        ulog_sha = sha256(log_path)
+        for case, params in CASES.items():
+            log_path = write_caldata_ulog(Path(tmp) / f"{case}.ulg", params)
+            cases[case] = {"generator": params, "ulog_sha256": sha256(log_path)}
+            for name, extra in (("default", []), ("no_resample", ["--no_resample"])):
+                env = {**os.environ, "MPLBACKEND": "Agg"}
+                subprocess.run([sys.executable, script, str(log_path), *extra], check=True, env=env, cwd=tmp,
+                               stdout=subprocess.DEVNULL)
+                cases[case][name] = gyro0(read_params(str(log_path) + ".params"))
     fixture = {
         "note": "PX4's Tools/process_sensor_caldata.py run unmodified on the ULog that tests/data/px4_reference.py "
-                "writes (write_caldata_ulog with GENERATOR); TC_G0_* as it wrote them to <log>.params. "
+                "writes (write_caldata_ulog with each case's generator settings); TC_G0_* as it wrote them to "
+                "<log>.params (TMIN, TMAX, TREF read back as float32). "
                 "Regenerate: python tests/data/px4_reference.py <script> tests/data/px4_reference.json",
         "px4_script": {"path": "Tools/process_sensor_caldata.py", "repository": "PX4/PX4-Autopilot",
                        "commit": SCRIPT_COMMIT, "read_from": "m4v3r/PX4-Arrow at 86822171b9 (same file)",
                        "sha256": sha256(script)},
-        "generator": GENERATOR, "ulog_sha256": ulog_sha,
         "versions": {name: version(name) for name in ("numpy", "scipy", "pyulog", "matplotlib")},
-        **results,
+        "cases": cases,
     }
     Path(out).write_text(json.dumps(fixture, indent=1) + "\n")
 
