@@ -44,6 +44,29 @@ def float32_tolerance(cubic: Cubic) -> float:
     return 2.0 ** -23 * (size + slope * (abs(cubic.temp_ref_c) + span))
 
 
+@pytest.fixture(scope="module")
+def poly3_bundle(tmp_path_factory, paper_csv) -> Path:
+    """model=poly3 as train.py trains it (10 s blocks of the training split)."""
+    from gyronet.baselines import TempPolynomial
+
+    out = tmp_path_factory.mktemp("poly3")
+    data = DriftData(str(paper_csv))
+    train_run(data, TempPolynomial(data.n_features), None, out, {"progress": False})
+    return out / "compensator"
+
+
+def test_poly3_params_read_back_to_the_bundles_curve_and_clamp(poly3_bundle, tmp_path):
+    summary = export_params(poly3_bundle, tmp_path / "poly3.params", "px4")
+    from_params = px4_cubic(read_params(tmp_path / "poly3.params"))
+    low, high = json.loads((poly3_bundle / "meta.json").read_text())["temp_range_c"]
+    # poly3 clamps to the range of its training blocks, inside the recording's
+    assert low < from_params.temp_min_c < low + 0.5 and high - 0.5 < from_params.temp_max_c < high
+    grid = np.linspace(low - 10, high + 10, 3001)
+    difference = np.abs(from_params(grid) - bundle_curve(poly3_bundle, grid)).max()
+    assert difference < float32_tolerance(from_params) and difference < 1e-6
+    assert max(summary["max_error_dps"].values()) < 1e-9
+
+
 def test_px4_params_read_back_to_the_bundles_curve(px4_bundle, tmp_path):
     summary = export_params(px4_bundle, tmp_path / "tc.params", "px4", instance=1, device_id=2359306)
     values = read_params(tmp_path / "tc.params")
