@@ -1,0 +1,41 @@
+"""Export a bundle for a flight stack or a microcontroller: python scripts/export.py model=D/compensator format=px4 output=F.params."""
+import sys
+from pathlib import Path
+
+from omegaconf import DictConfig
+
+from gyronet.errors import ConfigError
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # scripts/_cli.py, also when this file is run by path
+from _cli import command  # noqa: E402
+
+FORMATS = ("px4", "ardupilot", "c")
+
+
+@command("export", "deploy", schemas={"instance": int, "device_id": int, "vehicle_id": int, "component_id": int,
+                            "grid_points": int}, required=("model", "output"))
+def main(cfg: DictConfig) -> None:
+    if cfg.format not in FORMATS:
+        raise ConfigError(f"format must be one of {', '.join(FORMATS)}, got {cfg.format!r}")
+    if cfg.format == "c":
+        try:
+            from gyronet.deploy.c_export import write_c
+        except ModuleNotFoundError as err:
+            if err.name != "gyronet.deploy.c_export":
+                raise
+            raise ConfigError("format=c needs gyronet.deploy.c_export, which this install lacks") from None
+        summary = write_c(Path(cfg.model), Path(cfg.output))
+        print("\n".join(f"{key}: {value}" for key, value in summary.items()))
+        return
+    from gyronet.deploy.params import export_params
+
+    summary = export_params(cfg.model, cfg.output, cfg.format, cfg.instance, cfg.device_id, cfg.vehicle_id,
+                            cfg.component_id, cfg.grid_points)
+    error = ", ".join(f"{axis}={summary['max_error_dps'][axis]:.3g}" for axis in "xyz")
+    print(f"{summary['params']}: {summary['n_params']} parameters; cubic over {summary['temp_min_c']:.3f} .. "
+          f"{summary['temp_max_c']:.3f} degC, largest error against the bundle's curve {error} deg/s "
+          f"(at dT/dt = 0; {Path(summary['params']).with_suffix('.json')})")
+
+
+if __name__ == "__main__":
+    main()
