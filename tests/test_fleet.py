@@ -84,6 +84,20 @@ def test_table_of_every_unit(tmp_path):
         fleet_table(tmp_path / "a")
 
 
+def run(script: str, *args: str, cwd: Path) -> subprocess.CompletedProcess:
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")])}
+    return subprocess.run([sys.executable, str(ROOT / "scripts" / script), *args], cwd=cwd, env=env,
+                          capture_output=True, text=True, timeout=600)
+
+
+def test_bad_fleet_input_is_one_line(tmp_path):
+    done = run("fleet.py", "data.path=glob(units/*.csv)", cwd=tmp_path)
+    assert done.returncode == 2 and done.stderr.strip() == f"error: no file matches 'units/*.csv' (relative to {tmp_path})"
+    assert not (tmp_path / "outputs").exists()  # nothing launched, no sweep folder
+    done = run("fleet_table.py", f"sweep={tmp_path}", f"hydra.run.dir={tmp_path / 'h'}", cwd=tmp_path)
+    assert done.returncode == 2 and done.stderr.strip().splitlines()[-1].startswith(f"error: {tmp_path}: no {UNITS_FILE}")
+
+
 # --- end to end through the launchers -------------------------------------------------------
 
 def simulate_units(folder: Path, names: list[str]) -> None:
@@ -91,12 +105,6 @@ def simulate_units(folder: Path, names: list[str]) -> None:
 
     for i, name in enumerate(names):  # tiny: 2 h at 1 Hz, each its own sensor
         write_simulation(simulate("random", fs_hz=1.0, seed=i, sensor_seed=i, duration_s=2 * 3600), folder / f"{name}.csv")
-
-
-def run(script: str, *args: str, cwd: Path) -> subprocess.CompletedProcess:
-    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")])}
-    return subprocess.run([sys.executable, str(ROOT / "scripts" / script), *args], cwd=cwd, env=env,
-                          capture_output=True, text=True, timeout=600)
 
 
 FAST_TRAIN = ("train.max_epochs=20", "train.progress=false")

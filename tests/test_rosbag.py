@@ -214,9 +214,26 @@ def _run(script: str, *overrides: str, cwd: Path) -> subprocess.CompletedProcess
                           cwd=cwd, env=env, capture_output=True, text=True, timeout=300)
 
 
-def test_convert_and_allan_scripts_on_bags(tmp_path):
+def test_allan_from_a_bag_equals_allan_from_its_csv(tmp_path):
+    from gyronet.allan import allan_report
+    from gyronet.importers import convert
+
     imu = imu_stream(n=3000, fs_hz=50.0)
-    bag = write_bag(tmp_path / "rec", "db3", {"/imu": imu}, {"/imu/temperature": temp_stream(T0_NS - 10**9, n=70)})
+    bag = write_bag(tmp_path / "rec", "mcap", {"/imu": imu}, {"/t": temp_stream(T0_NS - 10**9, n=70)})
+    convert(bag, tmp_path / "rec.csv")
+    back = load_recording(tmp_path / "rec.csv")
+    from_bag = read_rates(bag)
+    from_csv = allan_report(back.time_s, back.gyro_dps)
+    report = allan_report(from_bag.time_s, from_bag.gyro_dps)
+    for axis in "xyz":
+        np.testing.assert_allclose(report[axis]["adev_dps"], from_csv[axis]["adev_dps"], rtol=1e-6)
+    # white rate noise of 0.01 rad/s at 50 Hz: N = sigma / sqrt(fs), deg/sqrt(h)
+    assert report["x"]["arw_deg_rthr"] == pytest.approx(np.degrees(0.01) / np.sqrt(50.0) * 60.0, rel=0.15)
+
+
+def test_convert_script_on_a_bag_folder(tmp_path):
+    imu = imu_stream(n=300)
+    write_bag(tmp_path / "rec", "db3", {"/imu": imu}, {"/imu/temperature": temp_stream(T0_NS - 10**9, n=10)})
     done = _run("convert.py", "input=rec", "output=rec.csv", "rosbag.stamp=header", cwd=tmp_path)
     assert done.returncode == 0, done.stderr
     back = load_recording(tmp_path / "rec.csv")
@@ -224,22 +241,29 @@ def test_convert_and_allan_scripts_on_bags(tmp_path):
     np.testing.assert_allclose(back.gyro_dps, np.degrees(imu["rate_rad_s"]), rtol=1e-9)
     assert back.meta["source_format"] == "rosbag" and back.meta["source_file"] == "rec"
 
+
+@pytest.mark.slow
+def test_allan_script_reads_bags_and_convert_refuses_one_without_temperature(tmp_path):
+    imu = imu_stream(n=3000, fs_hz=50.0)
+    bag = write_bag(tmp_path / "rec", "bag", {"/imu": imu}, {"/imu/temperature": temp_stream(T0_NS - 10**9, n=70)})
     done = _run("allan.py", f"input={bag}", "output=bag.json", cwd=tmp_path)
     assert done.returncode == 0, done.stderr
-    from_bag = json.loads((tmp_path / "bag.json").read_text())
-    done = _run("allan.py", "input=rec.csv", "output=csv.json", cwd=tmp_path)
-    assert done.returncode == 0, done.stderr
-    from_csv = json.loads((tmp_path / "csv.json").read_text())
+    report = allan_report_of(read_rates(bag))
+    from_script = json.loads((tmp_path / "bag.json").read_text())
     for axis in "xyz":
-        np.testing.assert_allclose(from_bag[axis]["adev_dps"], from_csv[axis]["adev_dps"], rtol=1e-6)
-    # white rate noise of 0.01 rad/s at 50 Hz: N = sigma / sqrt(fs) in deg/sqrt(h)
-    expected_arw = np.degrees(0.01) / np.sqrt(50.0) * 60.0
-    assert from_bag["x"]["arw_deg_rthr"] == pytest.approx(expected_arw, rel=0.15)
+        np.testing.assert_allclose(from_script[axis]["adev_dps"], report[axis]["adev_dps"], rtol=1e-9)
 
-    no_temp = write_bag(tmp_path / "no_temp", "bag", {"/imu": imu})
+    no_temp = write_bag(tmp_path / "no_temp", "mcap", {"/imu": imu})
+    done = _run("allan.py", f"input={no_temp}", "output=nt.json", cwd=tmp_path)
+    assert done.returncode == 0, done.stderr
+    assert json.loads((tmp_path / "nt.json").read_text())["x"]["adev_dps"] == from_script["x"]["adev_dps"]
     failed = _run("convert.py", f"input={no_temp}", "output=x.csv", cwd=tmp_path)
     assert failed.returncode == 2 and "Traceback" not in failed.stderr
     assert failed.stderr.strip().splitlines()[-1].startswith(f"error: {no_temp}: no sensor_msgs/Temperature topic")
     assert not (tmp_path / "x.csv").exists()
-    done = _run("allan.py", f"input={no_temp}", "output=nt.json", cwd=tmp_path)
-    assert done.returncode == 0, done.stderr
+
+
+def allan_report_of(recording):
+    from gyronet.allan import allan_report
+
+    return allan_report(recording.time_s, recording.gyro_dps)
