@@ -63,7 +63,7 @@ def find_units(pattern: str) -> tuple[dict[str, str], str, str]:
         raise GyronetError(f"{pattern!r} matches files that are not recordings of one kind ({', '.join(others)}); "
                            "a fleet trains on CSV recordings (all .csv or all .csv.gz): convert others first "
                            "with scripts/convert.py, or narrow the pattern")
-    root = os.path.commonpath([os.path.dirname(p) or "." for p in paths])
+    root = os.path.commonpath([os.path.dirname(p) or "." for p in paths]) or "."  # '' for '.' and 'units'
     units = {Path(os.path.relpath(p, root)).as_posix()[: -len(suffix)]: p for p in paths}
     bad = [p for p in [root, *units] if any(c in p for c in _UNSAFE)]
     if bad:

@@ -7,7 +7,7 @@ Hydra's own ``glob()`` picks among a config group's options, not files: ``train.
 train.py's (``model=``, ``train.*``, ``hydra/launcher=joblib|submitit_local|submitit_slurm``,
 ``hydra.launcher.*``, ``hydra.sweep.dir=S``), except ``fleet.spec_range_c=[LOW,HIGH]``, the
 temperature range every unit must cover. When the launcher returns, ``S/fleet_table.md`` and
-``S/fleet_table.json`` hold every unit's figures (``scripts/fleet_table.py sweep=S`` writes them again).
+``S/fleet_table.json`` hold every unit's figures (``scripts/fleet_table.py sweep=S`` tabulates again).
 """
 import datetime
 import json

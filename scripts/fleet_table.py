@@ -1,4 +1,4 @@
-"""The fleet table of a fleet sweep folder: python scripts/fleet_table.py sweep=S [spec_range_c=[-40,85]].
+"""The fleet table of a fleet sweep folder: python scripts/fleet_table.py sweep=S ['spec_range_c=[-40,85]'] [output=T.md].
 
 scripts/fleet.py writes it when its sweep ends; this writes it again (a unit re-run, another spec range).
 """

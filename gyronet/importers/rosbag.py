@@ -88,6 +88,8 @@ def import_rosbag(path: str | os.PathLike, imu_topic: str | None = None, temp_to
         ``time_s``, ``temp_c``, ``gyro_*_dps`` and, when the bag has them, ``acc_*_g``.
     """
     path = Path(path)
+    if temp_max_age_s is not None and not (isinstance(temp_max_age_s, (int, float)) and temp_max_age_s > 0):
+        raise GyronetError(f"rosbag.temp_max_age_s must be a positive number of seconds or null, got {temp_max_age_s!r}")
     with _open(path) as reader:
         imu_name = _pick(path, reader, imu_topic, (IMU_TYPE,), "imu_topic", "no sensor_msgs/Imu topic")
         temp_name = _pick(path, reader, temp_topic, (TEMP_TYPE, *SCALAR_TEMP_TYPES), "temp_topic",
@@ -190,18 +192,22 @@ def _read_imu(path: Path, reader, topic: str, stamp: str) -> tuple[np.ndarray, d
     """IMU stamps (ns, sorted), contract columns and metadata."""
     if stamp not in STAMPS:
         raise GyronetError(f"rosbag stamp must be one of {', '.join(STAMPS)}, got {stamp!r}")
-    stamps, values, frame_id = [], [], ""
-    for msg, bag_ns in _messages(path, reader, topic):
-        stamps.append(_stamp_ns(msg, bag_ns, stamp))
+    count = reader.topics[topic].msgcount
+    stamps, table, frame_id = np.zeros(count, dtype=np.int64), np.zeros((count, 7)), ""
+    n = 0
+    for n, (msg, bag_ns) in enumerate(_messages(path, reader, topic), start=1):
+        if n > count:  # pragma: no cover - the bag's index undercounts: grow
+            stamps, table = np.resize(stamps, 2 * n), np.resize(table, (2 * n, 7))
         rate, acc = msg.angular_velocity, msg.linear_acceleration
-        values.append((rate.x, rate.y, rate.z, acc.x, acc.y, acc.z, msg.linear_acceleration_covariance[0]))
+        stamps[n - 1] = _stamp_ns(msg, bag_ns, stamp)
+        table[n - 1] = (rate.x, rate.y, rate.z, acc.x, acc.y, acc.z, msg.linear_acceleration_covariance[0])
         frame_id = frame_id or msg.header.frame_id
-    if not stamps:
+    if n == 0:
         raise RecordingError(f"{path}: topic {topic} has no messages")
-    stamp_ns = _checked_stamps(path, topic, np.asarray(stamps, dtype=np.int64), stamp)
+    stamp_ns = _checked_stamps(path, topic, stamps[:n], stamp)
     order = np.argsort(stamp_ns, kind="stable")
     reordered = int(np.count_nonzero(order != np.arange(len(order))))
-    stamp_ns, table = stamp_ns[order], np.asarray(values, dtype=np.float64)[order]
+    stamp_ns, table = stamp_ns[order], table[:n][order]
     origin_ns = int(stamp_ns[0])
     # time_s = (stamp - first stamp) / 1e9, exact in integers before the one division
     columns = {"time_s": (stamp_ns - origin_ns).astype(np.float64) * 1e-9}
