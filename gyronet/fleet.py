@@ -14,7 +14,6 @@ from __future__ import annotations
 import glob
 import json
 import logging
-import math
 import os
 from pathlib import Path
 from typing import Any, Mapping, Sequence
@@ -122,10 +121,10 @@ def fleet_table(sweep_dir: str | os.PathLike, spec_range_c: Sequence[float] | No
             raise GyronetError(f"spec_range_c must be [low, high] with high > low, got {list(spec_range_c)}")
     elif ranges:
         low, high = min(r[0] for r in ranges), max(r[1] for r in ranges)
-    else:
-        low = high = math.nan
+    else:  # no unit trained: nothing to compare with
+        low = high = None
     for row in rows.values():
-        if row["status"] == "ok":
+        if row["status"] == "ok" and low is not None:
             row["out_of_range_share"] = _uncovered_share(row["temp_range_c"], low, high)
     return {"sweep_dir": str(sweep_dir), "reference_range_c": [low, high],
             "reference": "spec_range_c" if spec_range_c is not None else "union of the units' trained ranges",
@@ -138,15 +137,17 @@ def _unit_row(job_dir: Path, recording: str) -> dict[str, Any]:
     if not (report_path.is_file() and meta_path.is_file()):
         reason = "no job folder" if not job_dir.is_dir() else "no report.json (failed or not finished; see its train.log)"
         return {**row, "status": "missing", "reason": reason}
-    report = json.loads(report_path.read_text())
-    meta = json.loads(meta_path.read_text())
-    metrics = report["metrics"]
-    row.update(status="ok", val_rmse_dps={a: metrics[f"val/rmse_{a}_dps"] for a in AXES},
-               temp_range_c=[float(v) for v in meta["temp_range_c"]], bundle=str(job_dir / "compensator"))
-    evals = report.get("eval") or {}
-    if evals:
-        n_out = sum(r["n_out_of_range"] for r in evals.values())
-        row["eval_out_of_range_share"] = n_out / max(sum(r["n_samples"] for r in evals.values()), 1)
+    try:
+        report = json.loads(report_path.read_text())
+        meta = json.loads(meta_path.read_text())
+        metrics, evals = report["metrics"], report.get("eval") or {}
+        row.update(status="ok", val_rmse_dps={a: float(metrics[f"val/rmse_{a}_dps"]) for a in AXES},
+                   temp_range_c=[float(v) for v in meta["temp_range_c"]], bundle=str(job_dir / "compensator"))
+        if evals:
+            n_out = sum(r["n_out_of_range"] for r in evals.values())
+            row["eval_out_of_range_share"] = n_out / max(sum(r["n_samples"] for r in evals.values()), 1)
+    except (ValueError, KeyError, TypeError) as err:  # a damaged or foreign file: listed, not fatal
+        return {**row, "status": "missing", "reason": f"unreadable report.json or meta.json ({type(err).__name__}: {err})"}
     return row
 
 
@@ -161,8 +162,11 @@ def _uncovered_share(trained_c: Sequence[float], low: float, high: float) -> flo
 def to_markdown(table: Mapping[str, Any]) -> str:
     """One line per unit: validation error per axis, trained range, out-of-range share, bundle."""
     low, high = table["reference_range_c"]
-    lines = [f"Fleet {table['sweep_dir']}: {table['n_ok']} of {table['n_units']} units trained; out of range: "
-             f"share of [{low:.2f}, {high:.2f}] degC ({table['reference']}) outside the unit's trained range.", "",
+    head = f"Fleet {table['sweep_dir']}: {table['n_ok']} of {table['n_units']} units trained"
+    if low is not None:
+        head += (f"; out of range: share of [{low:.2f}, {high:.2f}] degC ({table['reference']}) outside the "
+                 "unit's trained range")
+    lines = [head + ".", "",
              "| unit | status | val RMSE x | y | z | trained range | out of range | bundle |",
              "|---|---|---|---|---|---|---|---|",
              "| | | deg/s | deg/s | deg/s | degC | share | |"]

@@ -82,6 +82,12 @@ def test_table_of_every_unit(tmp_path):
     assert lines[7].startswith("| c | missing: no report.json")
     with pytest.raises(GyronetError, match=f"no {UNITS_FILE}"):
         fleet_table(tmp_path / "a")
+    (tmp_path / "a" / "report.json").write_text('{"metrics": {')  # cut short
+    table = fleet_table(tmp_path)
+    assert table["units"]["a"]["status"] == "missing" and "unreadable report.json" in table["units"]["a"]["reason"]
+    write_units(tmp_path, {"c": "units/c.csv"})  # no unit trained: no reference range, still a table
+    assert fleet_table(tmp_path)["reference_range_c"] == [None, None]
+    assert to_markdown(fleet_table(tmp_path)).startswith(f"Fleet {tmp_path}: 0 of 1 units trained.\n")
 
 
 def run(script: str, *args: str, cwd: Path) -> subprocess.CompletedProcess:
