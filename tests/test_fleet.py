@@ -55,24 +55,27 @@ def test_fleet_arguments():
             fleet_script.parse(bad)
 
 
-def fake_job(sweep: Path, unit: str, rmse: tuple[float, float, float], range_c: tuple[float, float]) -> None:
+def fake_job(sweep: Path, unit: str, rmse: tuple[float, float, float], range_c: tuple[float, float],
+             evals: dict | None = None) -> None:
     """A unit's job folder as train.py leaves it: report.json and compensator/meta.json."""
     (sweep / unit / "compensator").mkdir(parents=True)
     metrics = {f"val/rmse_{a}_dps": v for a, v in zip("xyz", rmse)}
-    (sweep / unit / "report.json").write_text(json.dumps({"metrics": metrics, "eval": {}}))
+    (sweep / unit / "report.json").write_text(json.dumps({"metrics": metrics, "eval": evals or {}}))
     (sweep / unit / "compensator" / "meta.json").write_text(json.dumps({"temp_range_c": list(range_c)}))
 
 
 def test_table_of_every_unit(tmp_path):
     write_units(tmp_path, {"a": "units/a.csv", "b": "units/b.csv", "c": "units/c.csv"})
     fake_job(tmp_path, "a", (0.01, 0.02, 0.03), (-40.0, 60.0))
-    fake_job(tmp_path, "b", (0.04, 0.05, 0.06), (-15.0, 60.0))
+    fake_job(tmp_path, "b", (0.04, 0.05, 0.06), (-15.0, 60.0),
+             {"held/b.csv": {"n_out_of_range": 30, "n_samples": 100}, "held/b2.csv": {"n_out_of_range": 0, "n_samples": 200}})
     (tmp_path / "c").mkdir()  # started, never finished
     table = fleet_table(tmp_path)
     assert table["reference_range_c"] == [-40.0, 60.0] and (table["n_units"], table["n_ok"]) == (3, 2)
     a, b, c = (table["units"][u] for u in "abc")
     assert a["val_rmse_dps"] == {"x": 0.01, "y": 0.02, "z": 0.03} and a["out_of_range_share"] == 0.0
     assert b["out_of_range_share"] == pytest.approx(0.25)  # 25 of 100 degC not covered
+    assert b["eval_out_of_range_share"] == pytest.approx(0.1) and "eval_out_of_range_share" not in a
     assert c["status"] == "missing" and "no report.json" in c["reason"]
     assert table["units"]["b"]["bundle"] == str(tmp_path / "b" / "compensator")
     spec = fleet_table(tmp_path, spec_range_c=[-40.0, 85.0])
