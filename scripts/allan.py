@@ -1,6 +1,7 @@
-"""Allan analysis of a recording: python scripts/allan.py input=F.csv output=A.json.
+"""Allan analysis of a recording or a ROS bag: python scripts/allan.py input=F.csv|B.bag|BAG_FOLDER output=A.json.
 
-Writes A.json (CONTRACT.md section 3: per axis ``taus_s``, ``adev_dps``, N, B, K) and A.png.
+Writes A.json (CONTRACT.md section 3: per axis ``taus_s``, ``adev_dps``, N, B, K) and A.png. A bag
+is read in memory (its sensor_msgs/Imu topic, ``rosbag.imu_topic``); it needs no temperature.
 """
 import logging
 import sys
@@ -11,6 +12,7 @@ from omegaconf import DictConfig, OmegaConf
 from gyronet.allan import allan_report, format_table, plot_allan, report_to_json
 from gyronet.data import ALLAN_COLUMNS, load_recording
 from gyronet.errors import GyronetError
+from gyronet.importers.rosbag import is_rosbag, read_rates
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # scripts/_cli.py, also when this file is run by path
 from _cli import command  # noqa: E402
@@ -22,7 +24,10 @@ log = logging.getLogger(__name__)
 def main(cfg: DictConfig) -> None:
     if OmegaConf.is_missing(cfg, "input"):
         raise GyronetError("no recording given: add input=F.csv")
-    recording = load_recording(cfg.input, required=ALLAN_COLUMNS)
+    if is_rosbag(cfg.input):
+        recording = read_rates(cfg.input, cfg.rosbag.imu_topic, cfg.rosbag.stamp)
+    else:
+        recording = load_recording(cfg.input, required=ALLAN_COLUMNS)
     report = allan_report(recording.time_s, recording.gyro_dps, per_decade=int(cfg.per_decade))
     output = Path(cfg.output)
     output.parent.mkdir(parents=True, exist_ok=True)

@@ -1,7 +1,8 @@
-"""Convert another tool's recording to a CONTRACT.md CSV: python scripts/convert.py input=IN output=F.csv [format=psim|lpms|ulog|csv].
+"""Convert another tool's recording to a CONTRACT.md CSV: python scripts/convert.py input=IN output=F.csv [format=psim|lpms|ulog|rosbag|csv].
 
 ``format=csv`` (or auto) also reads a spreadsheet's export of the contract's columns: ``;`` or tab
 between cells, decimal commas, UTF-16, trailing commas; the output is the plain comma CSV.
+A ROS bag (``.bag``, ``.db3``, ``.mcap`` or a ROS 2 bag folder) is read with ``rosbag.*`` options.
 """
 import sys
 from pathlib import Path

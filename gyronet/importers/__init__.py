@@ -7,6 +7,7 @@ One module per format, each a function ``import_<format>(path, **options) -> Rec
 | ``psim`` | ``psim`` | the PAN cubesat thermal-vacuum test CSV (shared/data/real/psim-tvc) |
 | ``lpms`` | ``lpms`` | LP-Research LPMS log CSV (LPMS-Control, OpenMAT, OpenZen) |
 | ``ulog`` | ``ulog`` | PX4 ULog ``.ulg`` (sensor_gyro, sensor_accel, sensor_gyro_fifo) via pyulog |
+| ``rosbag`` | ``rosbag`` | ROS 1 ``.bag``, ROS 2 ``.db3``/``.mcap`` or bag folder (sensor_msgs/Imu + Temperature) via rosbags |
 | ``csv`` | ``contract`` | a file that already follows the contract |
 
 ``import_recording(path, format="auto")`` picks the format from the file (``detect_format``) and
@@ -29,6 +30,7 @@ from gyronet.importers._common import read_header_line, read_text
 from gyronet.importers.contract import import_contract
 from gyronet.importers.lpms import import_lpms
 from gyronet.importers.psim import import_psim
+from gyronet.importers.rosbag import import_rosbag, is_rosbag
 from gyronet.importers.ulog import import_ulog, is_ulog
 
 log = logging.getLogger(__name__)
@@ -37,6 +39,7 @@ IMPORTERS: dict[str, Callable[..., Recording]] = {
     "psim": import_psim,
     "lpms": import_lpms,
     "ulog": import_ulog,
+    "rosbag": import_rosbag,
     "csv": import_contract,
 }
 FORMATS = tuple(IMPORTERS)
@@ -53,6 +56,8 @@ def detect_format(path: str | os.PathLike) -> str:
         When no importer recognises the file.
     """
     path = Path(path)
+    if is_rosbag(path):
+        return "rosbag"
     if not path.is_file():
         raise RecordingError(f"{path}: no such file")
     if is_ulog(path) or path.suffix.lower() == ".ulg":
@@ -148,4 +153,4 @@ def convert_with_options(path: str | os.PathLike, output: str | os.PathLike, for
 
 
 __all__ = ["FORMATS", "IMPORTERS", "convert", "convert_with_options", "detect_format", "import_contract", "import_lpms",
-           "import_psim", "import_recording", "import_ulog"]
+           "import_psim", "import_recording", "import_rosbag", "import_ulog"]
