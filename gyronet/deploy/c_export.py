@@ -38,7 +38,7 @@ _STATE = [
     ("double", "offset_start_s", 1, ""),
     ("double", "offset_sum_dps", 3, ""),
     ("float", "last_row", "n_features", "features of the last accepted sample"),
-    ("float", "filter", "n_filter", "lag outputs; rate trackers: last input, level minus it, slope"),
+    ("float", "filter", "n_filter", "per lag: last input, output minus it; per rate tracker: last input, level minus it, slope"),
     ("float", "play", "n_play", "hysteresis play operators"),
     ("float", "guard_temp_c", 1, ""),
     ("float", "candidate_temp_c", 1, ""),

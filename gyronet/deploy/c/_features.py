@@ -78,7 +78,7 @@ def feature_code(specs: Sequence[Mapping[str, Any]], fs_hz: float, aux: Sequence
             accepted.append(f"    x[{i}] = event != EVENT_NONE ? lag_restart(&s->filter[{n_filter}], &LAG_{i}, v[{k}], "
                             f"event, gap_s)\n                            : lag_step(&s->filter[{n_filter}], &LAG_{i}, v[{k}]);")
             power_on.append(f"    x[{i}] = w[{k}];")
-            n_filter += 1
+            n_filter += 2
         elif kind == "column":
             accepted.append(f"    x[{i}] = v[{k}];")
             power_on.append(f"    x[{i}] = w[{k}];")
