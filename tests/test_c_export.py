@@ -28,12 +28,12 @@ AUX = "vdd_v"
 pytestmark = pytest.mark.skipif(CC is None, reason="no C compiler (cc or gcc) on this machine")
 
 
-def _train(out: Path, csv: Path, model_factory, features=None, kalman=False) -> Path:
+def _train(out: Path, csv: Path, model_factory, features=None, kalman=None) -> Path:
     from gyronet.dataset import DriftData
     from gyronet.pipeline import train_run
 
     data = DriftData(str(csv)) if features is None else DriftData(str(csv), features=features)
-    kalman_cfg = {"enabled": True, "mode": "smooth", "q_rate_dps2_per_s": 0.01} if kalman else None
+    kalman_cfg = None if kalman is None else {"enabled": True, **kalman}
     train_run(data, model_factory(data.n_features), None, out, {"max_epochs": 100, "progress": False},
               kalman_cfg=kalman_cfg)
     return out / "compensator"
@@ -52,7 +52,7 @@ def aux_csv(tmp_path_factory, paper_csv) -> Path:
 
 @pytest.fixture(scope="module")
 def bundles(tmp_path_factory, bundle, paper_csv, aux_csv) -> dict:
-    """One bundle of every kind: default RBFNet, with a Kalman stage, the paper's RBF, poly3, lsq, every feature kind."""
+    """One bundle of every kind: default RBFNet, with Kalman stages, the paper's RBF, poly3, lsq, every feature kind."""
     from gyronet.baselines import LinearFeatures, TempPolynomial
     from gyronet.model import RBFNet
 
@@ -65,7 +65,10 @@ def bundles(tmp_path_factory, bundle, paper_csv, aux_csv) -> dict:
                   {"kind": "time", "tau_s": 3600.0}, {"kind": "time"}]
     return {
         "default": bundle,
-        "kalman": _train(root / "kalman", paper_csv, default, kalman=True),
+        "kalman": _train(root / "kalman", paper_csv, default, kalman={"mode": "smooth", "q_rate_dps2_per_s": 0.01}),
+        # a narrow rate bandwidth: a long gain transient, and the drift estimate removed
+        "kalman_rate": _train(root / "kalman_rate", paper_csv, default,
+                              kalman={"mode": "rate", "q_rate_dps2_per_s": 1e-6}),
         "paper_rbf": _train(root / "rbf", paper_csv, lambda n: RBFNet(n, 3, 32, rbf_inputs=None)),
         "poly3": _train(root / "poly3", paper_csv, lambda n: TempPolynomial(n, 3, 3)),
         "lsq": _train(root / "lsq", paper_csv, lambda n: LinearFeatures(n, 3)),
@@ -129,17 +132,19 @@ def _check(c_out: np.ndarray, py) -> None:
     np.testing.assert_array_equal(c_out[:, 3].astype(int), flags)
     error = np.abs(c_out[:, :3] - py.rate_dps)
     assert np.all(np.isfinite(c_out[:, :3]))
+    print(f"max |C - Python| {error.max():.3g} deg/s")
     assert error.max() < TOL_DPS, f"max |C - Python| {error.max():.3g} deg/s at row {error.max(1).argmax()}"
 
 
-@pytest.mark.parametrize("kind", ["default", "kalman", "paper_rbf", "poly3", "lsq", "aux"])
+@pytest.mark.parametrize("kind", ["default", "kalman", "kalman_rate", "paper_rbf", "poly3", "lsq", "aux"])
 def test_c_matches_compensator_on_a_hard_recording(kind, bundles, paper_csv, aux_csv, tmp_path):
     exe, summary = _build(bundles[kind], tmp_path)
     columns = _hard(_columns(aux_csv if kind == "aux" else paper_csv))
     py = _python(bundles[kind], columns)
     assert py.out_of_range.sum() > 100 and py.bad_input.sum() >= 15  # the cases are really there
     _check(_run_c(exe, columns, summary["aux_inputs"], tmp_path), py)
-    assert summary["kalman"] == (kind == "kalman") and summary["aux_inputs"] == ([AUX] if kind == "aux" else [])
+    print(kind, summary)
+    assert summary["kalman"] == kind.startswith("kalman") and summary["aux_inputs"] == ([AUX] if kind == "aux" else [])
 
 
 def test_c_matches_compensate_py_with_a_startup_offset(bundles, paper_csv, tmp_path):

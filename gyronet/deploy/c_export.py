@@ -46,7 +46,8 @@ _STATE = [
     ("float", "static_rate_dps", 3, ""),
     ("float", "last_out_dps", 3, "what a bad gyro axis becomes"),
     ("float", "kalman_x", "n_kalman", "Kalman state, the axes side by side"),
-    ("uint32_t", "kalman_n", 1, "samples filtered, up to the gain table's length"),
+    ("float", "kalman_p", "n_kalman_p", "its covariance blocks, during the gain transient"),
+    ("uint32_t", "kalman_n", 1, "samples filtered, up to the end of the gain transient"),
     ("uint32_t", "offset_count", 1, ""),
     ("uint32_t", "n_out_of_range", 1, "counts since init"),
     ("uint32_t", "n_bad_input", 1, ""),
@@ -90,7 +91,7 @@ def write_c(bundle_dir: Path, out_dir: Path) -> dict[str, Any]:
     """Write ``out_dir/gyronet_compensator.{h,c}`` for the bundle; a bundle it cannot export is one BundleError line.
 
     Returns a summary: ``files`` written, model ``kind``, ``state_bytes`` (``sizeof(gyronet_state)``),
-    ``aux_inputs``, ``kalman`` and ``gain_rows``.
+    ``aux_inputs``, ``kalman`` and ``kalman_transient_samples``.
     """
     from gyronet.compensator import Compensator
 
@@ -107,11 +108,11 @@ def write_c(bundle_dir: Path, out_dir: Path) -> dict[str, Any]:
     kalman = no_kalman() if compensator.kalman is None else kalman_code(compensator.kalman.to_dict(),
                                                                          f"{bundle_dir}/kalman.json")
     fields, state_bytes = _state({"n_features": len(specs), "n_filter": feats.n_filter, "n_play": feats.n_play,
-                                  "n_kalman": kalman.n_states})
+                                  "n_kalman": kalman.n_states, "n_kalman_p": kalman.n_covariance})
     low, high = compensator.temp_range_c
     aux_param = "\n                 const float *aux," if aux else ""
     values = {
-        "VERSION": str(meta.get("gyronet_version", "unknown")), "BUNDLE": bundle_dir.name or str(bundle_dir),
+        "VERSION": str(meta.get("gyronet_version", "unknown")), "BUNDLE": (bundle_dir.name or str(bundle_dir)).replace("*/", "* /"),
         "MODEL_CLASS": model.kind, "FS_HZ": repr(fs_hz), "FEATURE_NAMES": ", ".join(meta["feature_names"]),
         "TEMP_LOW_C": c_float(low), "TEMP_HIGH_C": c_float(high), "N_AUX": str(len(aux)),
         "AUX_NAMES": ", ".join(aux) or "none", "HAS_KALMAN": str(int(compensator.kalman is not None)),
@@ -133,7 +134,7 @@ def write_c(bundle_dir: Path, out_dir: Path) -> dict[str, Any]:
             tmp.write_text(text)
         written.append(str(out_dir / name))
     summary = {"files": written, "kind": model.kind, "state_bytes": state_bytes, "aux_inputs": aux,
-               "kalman": compensator.kalman is not None, "gain_rows": kalman.n_gain_rows,
+               "kalman": compensator.kalman is not None, "kalman_transient_samples": kalman.n_transient,
                "model_numbers": model.n_numbers, "features": list(meta["feature_names"])}
     log.info("C compensator (%s, state %d bytes) written to %s", model.kind, state_bytes, out_dir)
     return summary

@@ -44,7 +44,7 @@ def feature_code(specs: Sequence[Mapping[str, Any]], fs_hz: float, aux: Sequence
     n_filter = n_play = 0
     first_rate = None
     # v as a fresh filter sees it in a rejected row: the prior temperature, other columns 0 where not finite
-    power_on.append(f"    float w[1 + GYRONET_N_AUX];\n    w[0] = PRIOR_TEMP_C;")
+    power_on.append("    float w[1 + GYRONET_N_AUX];\n    w[0] = PRIOR_TEMP_C;")
     for k in range(len(aux)):
         power_on.append(f"    w[{k + 1}] = v[{k + 1}] - v[{k + 1}] == 0.0f ? v[{k + 1}] : 0.0f;")
     for i, spec in enumerate(specs):
