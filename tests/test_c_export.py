@@ -239,3 +239,19 @@ def test_export_command_writes_c(bundle, tmp_path):
                           text=True)
     assert proc.returncode == 0, proc.stderr
     assert (out / "gyronet_compensator.h").is_file() and (out / "gyronet_compensator.c").is_file()
+
+
+@pytest.mark.slow
+def test_bench_row_quick(tmp_path):
+    """scripts/bench.py's c_compensator row runs (quick sizes) and its C agrees with Python."""
+    import json
+    import os
+
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")])}
+    proc = subprocess.run([sys.executable, str(ROOT / "scripts" / "bench.py"), "--quick", "--only", "c_compensator",
+                           "--json", str(tmp_path / "b.json"), "--work-dir", str(tmp_path)], cwd=ROOT, env=env,
+                          capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    (result,) = json.loads((tmp_path / "b.json").read_text())["rows"]
+    assert result["c_ns_per_sample"] > 0 and result["flash_bytes"]["-O2"] > 0
+    assert result["max_diff_dps"] < TOL_DPS

@@ -21,6 +21,7 @@ from gyronet.deploy.c._features import aux_inputs, feature_code
 from gyronet.deploy.c._kalman import kalman_code, no_kalman
 from gyronet.deploy.c._model import model_code
 from gyronet.errors import BundleError
+from gyronet.features import GAP_FACTOR
 
 log = logging.getLogger(__name__)
 
@@ -117,7 +118,7 @@ def write_c(bundle_dir: Path, out_dir: Path) -> dict[str, Any]:
         "TEMP_LOW_C": c_float(low), "TEMP_HIGH_C": c_float(high), "N_AUX": str(len(aux)),
         "AUX_NAMES": ", ".join(aux) or "none", "HAS_KALMAN": str(int(compensator.kalman is not None)),
         "STATE_FIELDS": fields, "AUX_PARAM": aux_param, "N_FEATURES": str(len(specs)),
-        "GAP_S": repr(1.5 / fs_hz),
+        "GAP_S": repr(GAP_FACTOR * (1.0 / fs_hz)),  # as FeatureExtractor computes it, to the last bit
         "AUX_COPY": "\n".join(f"    v[{k + 1}] = aux[{k}];" for k in range(len(aux))),
         "CONSTANTS": "\n".join(part for part in (feats.constants, model.constants, kalman.constants) if part),
         "FEATURES_ACCEPTED": feats.accepted, "FEATURES_POWER_ON": feats.power_on, "TIME_FEATURES": feats.time,
