@@ -39,7 +39,7 @@ _STATE = [
     ("double", "offset_start_s", 1, ""),
     ("double", "offset_sum_dps", 3, ""),
     ("float", "last_row", "n_features", "features of the last accepted sample"),
-    ("float", "filter", "n_filter", "per lag: last input, output minus it; per rate tracker: last input, level minus it, slope"),
+    ("float", "filter", "n_filter", "lag: last input, output - input; rate tracker: last input, level - input, slope"),
     ("float", "play", "n_play", "hysteresis play operators"),
     ("float", "guard_temp_c", 1, ""),
     ("float", "candidate_temp_c", 1, ""),
@@ -58,6 +58,8 @@ _STATE = [
     ("int", "n_candidate", 1, ""),
     ("int", "offset_mode", 1, "0 none, 1 armed, 2 in the window, 3 applied"),
 ]
+# the template's optional helpers, and what a generated body calls them by
+_HELPERS = {"LAG": "lag_", "TRACKER": "tracker_", "CLAMP": "clampf(", "IPOW": "ipow("}
 _SIZES = {"double": 8, "float": 4, "uint32_t": 4, "int": 4}  # and their alignment (ILP32 and LP64 alike)
 
 
@@ -113,7 +115,8 @@ def write_c(bundle_dir: Path, out_dir: Path) -> dict[str, Any]:
     low, high = compensator.temp_range_c
     aux_param = "\n                 const float *aux," if aux else ""
     values = {
-        "VERSION": str(meta.get("gyronet_version", "unknown")), "BUNDLE": (bundle_dir.name or str(bundle_dir)).replace("*/", "* /"),
+        "VERSION": str(meta.get("gyronet_version", "unknown")),
+        "BUNDLE": (bundle_dir.name or str(bundle_dir)).replace("*/", "* /"),  # it goes into a comment
         "MODEL_CLASS": model.kind, "FS_HZ": repr(fs_hz), "FEATURE_NAMES": ", ".join(meta["feature_names"]),
         "TEMP_LOW_C": c_float(low), "TEMP_HIGH_C": c_float(high), "N_AUX": str(len(aux)),
         "AUX_NAMES": ", ".join(aux) or "none", "HAS_KALMAN": str(int(compensator.kalman is not None)),
@@ -124,9 +127,8 @@ def write_c(bundle_dir: Path, out_dir: Path) -> dict[str, Any]:
         "FEATURES_ACCEPTED": feats.accepted, "FEATURES_POWER_ON": feats.power_on, "TIME_FEATURES": feats.time,
         "MODEL_BODY": model.body, "KALMAN_BODY": kalman.body,
     }
-    code = "\n".join([values["FEATURES_ACCEPTED"], values["FEATURES_POWER_ON"], values["MODEL_BODY"]])
-    values["USES"] = "\n".join(f"#define USES_{name.upper()} {int(f'{name}_' in code or f'{name}(' in code)}"
-                               for name in ("lag", "tracker", "clampf", "ipow")).replace("USES_CLAMPF", "USES_CLAMP")
+    code = "\n".join([feats.accepted, feats.power_on, model.body])
+    values["USES"] = "\n".join(f"#define USES_{name} {int(call in code)}" for name, call in _HELPERS.items())
     out_dir.mkdir(parents=True, exist_ok=True)
     written = []
     for name in (HEADER, SOURCE):

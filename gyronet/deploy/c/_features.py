@@ -49,7 +49,7 @@ def feature_code(specs: Sequence[Mapping[str, Any]], fs_hz: float, aux: Sequence
         power_on.append(f"    w[{k + 1}] = v[{k + 1}] - v[{k + 1}] == 0.0f ? v[{k + 1}] : 0.0f;")
     for i, spec in enumerate(specs):
         kind, column = spec["kind"], spec.get("source", "temp_c")
-        k = 0 if column == "temp_c" else 1 + list(aux).index(column)
+        k = 1 + list(aux).index(column) if column in aux else 0  # where v holds the source column
         where = f"{source}: features[{i}] ({kind})"
         if kind == "temp":
             accepted.append(f"    x[{i}] = v[0];")
@@ -74,9 +74,11 @@ def feature_code(specs: Sequence[Mapping[str, Any]], fs_hz: float, aux: Sequence
             power_on.append(f"    x[{i}] = 0.0f;")
         elif kind == "lag" or (kind == "column" and float(spec.get("tau_s", 0.0)) > 0):
             tau_s = float(spec["tau_s"])
-            constants.append(f"static const lag_coef LAG_{i} = {{{c_float(math.exp(-dt_s / tau_s))}, {c_float(tau_s)}}};")
-            accepted.append(f"    x[{i}] = event != EVENT_NONE ? lag_restart(&s->filter[{n_filter}], &LAG_{i}, v[{k}], "
-                            f"event, gap_s)\n                            : lag_step(&s->filter[{n_filter}], &LAG_{i}, v[{k}]);")
+            decay = c_float(math.exp(-dt_s / tau_s))
+            constants.append(f"static const lag_coef LAG_{i} = {{{decay}, {c_float(tau_s)}}};")
+            state = f"&s->filter[{n_filter}], &LAG_{i}, v[{k}]"
+            accepted.append(f"    x[{i}] = event != EVENT_NONE ? lag_restart({state}, event, gap_s)\n"
+                            f"                            : lag_step({state});")
             power_on.append(f"    x[{i}] = w[{k}];")
             n_filter += 2
         elif kind == "column":

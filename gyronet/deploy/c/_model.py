@@ -127,9 +127,9 @@ def _poly_c(p: dict[str, Any]) -> tuple[str, str]:
     n = len(p["coef"])
     constants = f"static const float M_COEF[{n}][3] = {c_array(p['coef'])};"
     body = [f"    float t = clampf(x[{p['t']}], {c_float(p['min'])}, {c_float(p['max'])}) - {c_float(p['ref'])};",
-            "    float power = 1.0f;", "    int k, a;", "    for (a = 0; a < 3; ++a) {", "        drift[a] = M_COEF[0][a];",
-            "    }", f"    for (k = 1; k < {n}; ++k) {{", "        power *= t;", "        for (a = 0; a < 3; ++a) {",
-            "            drift[a] += M_COEF[k][a] * power;", "        }", "    }"]
+            "    float power = 1.0f;", "    int k, a;", "    for (a = 0; a < 3; ++a) {",
+            "        drift[a] = M_COEF[0][a];", "    }", f"    for (k = 1; k < {n}; ++k) {{", "        power *= t;",
+            "        for (a = 0; a < 3; ++a) {", "            drift[a] += M_COEF[k][a] * power;", "        }", "    }"]
     return constants, "\n".join(body)
 
 
