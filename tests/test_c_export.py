@@ -255,3 +255,31 @@ def test_bench_row_quick(tmp_path):
     (result,) = json.loads((tmp_path / "b.json").read_text())["rows"]
     assert result["c_ns_per_sample"] > 0 and result["flash_bytes"]["-O2"] > 0
     assert result["max_diff_dps"] < TOL_DPS
+
+
+@pytest.mark.slow
+def test_float32_at_1khz_with_a_long_lag_after_11_days(tmp_path):
+    """1 kHz, a 600 s lag, a clock at 1e6 s: where float32 state or time would break, the C still agrees."""
+    from gyronet.baselines import LinearFeatures
+    from gyronet.compensator import build_meta
+    from gyronet.export import save_bundle
+    from gyronet.features import feature_name
+
+    fs_hz, n = 1000.0, 600_000
+    specs = [{"kind": "temp"}, {"kind": "rate", "tau_s": 5.0}, {"kind": "product"}, {"kind": "lag", "tau_s": 600.0}]
+    model = LinearFeatures(len(specs))
+    with torch.no_grad():
+        model.weight.copy_(torch.tensor([[0.01, -0.02, 0.005], [2.0, 1.0, -1.5], [0.01, 0.02, 0.0],
+                                         [0.02, -0.01, 0.01]], dtype=torch.float64))
+        model.x_mean.copy_(torch.tensor([35.0, 0.0, 0.0, 35.0], dtype=torch.float64))
+    meta = build_meta(specs, [feature_name(s) for s in specs], fs_hz, (20.0, 50.0),
+                      ["time_s", "temp_c", *GYRO_COLUMNS], "0" * 64, {"class": "LinearFeatures"})
+    save_bundle(model, meta, tmp_path / "b")
+    rng = np.random.default_rng(3)
+    time_s = 1e6 + np.arange(n) / fs_hz
+    # a 0.05 degC/s ramp, quantised to 1/16 degC as sensors report it
+    temp_c = np.round((20.0 + 0.05 * (time_s - time_s[0])) * 16.0) / 16.0
+    columns = {"time_s": time_s, "temp_c": temp_c,
+               **{c: 0.1 + 0.01 * rng.standard_normal(n) for c in GYRO_COLUMNS}}
+    exe, _ = _build(tmp_path / "b", tmp_path)
+    _check(_run_c(exe, columns, [], tmp_path), _python(tmp_path / "b", columns))

@@ -39,7 +39,7 @@ _STATE = [
     ("double", "offset_start_s", 1, ""),
     ("double", "offset_sum_dps", 3, ""),
     ("float", "last_row", "n_features", "features of the last accepted sample"),
-    ("float", "filter", "n_filter", "lag: last input, output - input; rate tracker: last input, level - input, slope"),
+    ("float", "filter", "n_filter", "lag: output as a float pair; rate tracker: last input, level - input, slope"),
     ("float", "play", "n_play", "hysteresis play operators"),
     ("float", "guard_temp_c", 1, ""),
     ("float", "candidate_temp_c", 1, ""),

@@ -58,8 +58,9 @@ def feature_code(specs: Sequence[Mapping[str, Any]], fs_hz: float, aux: Sequence
             tau_s = float(spec.get("tau_s", 5.0))
             theta = math.exp(-dt_s / tau_s)
             max_slope = MAX_TEMP_RATE_C_PER_S if column == "temp_c" else _NO_SLOPE_BOUND
-            # alpha = 1 - theta^2, beta = (1 - theta)^2 (gyronet.filters.RateTracker)
-            constants.append(f"static const tracker_coef TRACKER_{i} = {{{c_float(dt_s)}, {c_float(1 - theta ** 2)}, "
+            # alpha = 1 - theta^2, beta = (1 - theta)^2 (gyronet.filters.RateTracker); alpha - 1 and
+            # beta / dt in float64, which float32 then holds to its full precision
+            constants.append(f"static const tracker_coef TRACKER_{i} = {{{c_float(dt_s)}, {c_float(-theta ** 2)}, "
                              f"{c_float((1 - theta) ** 2 / dt_s)}, {c_float(tau_s)}, {c_float(max_slope)}}};")
             accepted.append(f"    if (event != EVENT_NONE) {{\n        tracker_restart(&s->filter[{n_filter}], "
                             f"&TRACKER_{i}, v[{k}], event, gap_s);\n    }}\n"
@@ -74,8 +75,8 @@ def feature_code(specs: Sequence[Mapping[str, Any]], fs_hz: float, aux: Sequence
             power_on.append(f"    x[{i}] = 0.0f;")
         elif kind == "lag" or (kind == "column" and float(spec.get("tau_s", 0.0)) > 0):
             tau_s = float(spec["tau_s"])
-            decay = c_float(math.exp(-dt_s / tau_s))
-            constants.append(f"static const lag_coef LAG_{i} = {{{decay}, {c_float(tau_s)}}};")
+            gain = c_float(-math.expm1(-dt_s / tau_s))  # 1 - decay
+            constants.append(f"static const lag_coef LAG_{i} = {{{gain}, {c_float(tau_s)}}};")
             state = f"&s->filter[{n_filter}], &LAG_{i}, v[{k}]"
             accepted.append(f"    x[{i}] = event != EVENT_NONE ? lag_restart({state}, event, gap_s)\n"
                             f"                            : lag_step({state});")
