@@ -34,7 +34,7 @@ def _train(out: Path, csv: Path, model_factory, features=None, kalman=None) -> P
 
     data = DriftData(str(csv)) if features is None else DriftData(str(csv), features=features)
     kalman_cfg = None if kalman is None else {"enabled": True, **kalman}
-    train_run(data, model_factory(data.n_features), None, out, {"max_epochs": 100, "progress": False},
+    train_run(data, model_factory(data.n_features), None, out, {"max_epochs": 30, "progress": False},
               kalman_cfg=kalman_cfg)
     return out / "compensator"
 
