@@ -1,0 +1,182 @@
+"""A bundle's model (its TorchScript buffers and parameters) as C constants and the body of ``model_drift``.
+
+Each known class has a reader that turns the module into plain arrays (constants folded: 1/std,
+-1/(2 w^2), the output scale in the weights) and a numpy function that computes from those arrays
+exactly what the C does, in float64. ``model_code`` checks that function against the module's own
+``forward`` on probe inputs inside and outside the trained box: if a model's form changes (a new
+term in ``RBFNet.parts``), the export fails in one line instead of writing C that computes
+something else.
+"""
+from __future__ import annotations
+
+from typing import Any, Callable, NamedTuple
+
+import numpy as np
+
+from gyronet.deploy.c import c_array, c_float
+from gyronet.errors import BundleError
+
+PROBE_ROWS = 512
+CHECK_TOL = 1e-9  # relative to the largest drift on the probe: float64 against float64
+
+
+class ModelCode(NamedTuple):
+    """The C of a model, what it is, and how many numbers it stores."""
+
+    kind: str
+    constants: str
+    body: str
+    n_numbers: int
+
+
+def _array(module: Any, name: str) -> np.ndarray:
+    tensor = module
+    for part in name.split("."):
+        tensor = getattr(tensor, part)
+    return tensor.detach().cpu().double().numpy().copy()
+
+
+def _softplus(x: np.ndarray) -> np.ndarray:
+    # torch's softplus: x itself above its threshold of 20
+    return np.where(x > 20.0, x, np.log1p(np.exp(np.minimum(x, 20.0))))
+
+
+def _rbf(module: Any) -> tuple[dict[str, Any], Callable[[np.ndarray], np.ndarray]]:
+    """RBFNet.parts and forward: normalise, clamp to the box, Gaussians, linear, powers of T, de-normalise."""
+    y_std, y_mean = _array(module, "y_std"), _array(module, "y_mean")
+    widths = _softplus(_array(module, "raw_width")) + float(module.min_width)
+    head = _array(module, "head.weight") * y_std[:, None]
+    linear = _array(module, "linear.weight") * y_std[:, None]
+    poly = _array(module, "poly.weight") * y_std[:, None]
+    p = {"mean": _array(module, "x_mean"), "inv_std": 1.0 / _array(module, "x_std"),
+         "low": _array(module, "z_low"), "high": _array(module, "z_high"), "clamp": bool(module.clamp),
+         "t": int(module.temp_index), "index": [int(i) for i in module.rbf_index.tolist()],
+         "centers": _array(module, "centers"), "neg_half_inv_w2": -0.5 / widths ** 2, "head": head,
+         "bias": _array(module, "head.bias") * y_std + y_mean,
+         "linear": linear if np.any(linear) else None, "poly": poly if np.any(poly) else None}
+
+    def reference(x: np.ndarray) -> np.ndarray:
+        z = (x - p["mean"]) * p["inv_std"]
+        zc = np.clip(z, p["low"], p["high"]) if p["clamp"] else z
+        z[:, p["t"]] = zc[:, p["t"]]
+        r = zc[:, p["index"]]
+        phi = np.exp(((r[:, None, :] - p["centers"][None]) ** 2).sum(2) * p["neg_half_inv_w2"])
+        y = p["bias"] + phi @ p["head"].T
+        if p["linear"] is not None:
+            y = y + z @ p["linear"].T
+        if p["poly"] is not None:
+            temp = zc[:, p["t"]:p["t"] + 1]
+            y = y + sum(p["poly"][:, k] * temp ** (k + 2) for k in range(p["poly"].shape[1]))
+        return y
+
+    return p, reference
+
+
+def _rbf_c(p: dict[str, Any]) -> tuple[str, str]:
+    n_in, (n_c, n_r) = len(p["mean"]), p["centers"].shape
+    constants = [f"static const float M_MEAN[{n_in}] = {c_array(p['mean'])};",
+                 f"static const float M_INV_STD[{n_in}] = {c_array(p['inv_std'])};",
+                 f"static const unsigned char M_RBF_INDEX[{n_r}] = {{{', '.join(map(str, p['index']))}}};",
+                 f"static const float M_CENTERS[{n_c}][{n_r}] = {c_array(p['centers'])};",
+                 f"static const float M_NEG_HALF_INV_W2[{n_c}] = {c_array(p['neg_half_inv_w2'])};",
+                 f"static const float M_HEAD[3][{n_c}] = {c_array(p['head'])};",
+                 f"static const float M_BIAS[3] = {c_array(p['bias'])};"]
+    body = [f"    float z[{n_in}], zc[{n_in}], r, sq, phi;", "    int i, j, k, a;",
+            f"    for (i = 0; i < {n_in}; ++i) {{", "        z[i] = (x[i] - M_MEAN[i]) * M_INV_STD[i];"]
+    if p["clamp"]:
+        constants += [f"static const float M_Z_LOW[{n_in}] = {c_array(p['low'])};",
+                      f"static const float M_Z_HIGH[{n_in}] = {c_array(p['high'])};"]
+        body += ["        zc[i] = clampf(z[i], M_Z_LOW[i], M_Z_HIGH[i]);", "    }",
+                 "    /* the linear term sees temperature clamped, the other inputs as they are */",
+                 f"    z[{p['t']}] = zc[{p['t']}];"]
+    else:
+        body += ["        zc[i] = z[i];", "    }"]
+    body += ["    for (a = 0; a < 3; ++a) {", "        drift[a] = M_BIAS[a];", "    }",
+             "    /* phi_k = exp(-|r - c_k|^2 / (2 w_k^2)) */",
+             f"    for (k = 0; k < {n_c}; ++k) {{", "        sq = 0.0f;",
+             f"        for (j = 0; j < {n_r}; ++j) {{", "            r = zc[M_RBF_INDEX[j]] - M_CENTERS[k][j];",
+             "            sq += r * r;", "        }", "        phi = expf(sq * M_NEG_HALF_INV_W2[k]);",
+             "        for (a = 0; a < 3; ++a) {", "            drift[a] += M_HEAD[a][k] * phi;", "        }", "    }"]
+    if p["linear"] is not None:
+        constants.append(f"static const float M_LINEAR[3][{n_in}] = {c_array(p['linear'])};")
+        body += ["    for (a = 0; a < 3; ++a) {", f"        for (i = 0; i < {n_in}; ++i) {{",
+                 "            drift[a] += M_LINEAR[a][i] * z[i];", "        }", "    }"]
+    if p["poly"] is not None:
+        n_p = p["poly"].shape[1]
+        constants.append(f"static const float M_POLY[3][{n_p}] = {c_array(p['poly'])};")
+        body += ["    /* powers 2..degree of the clamped, normalised temperature */",
+                 "    {", f"        float t = zc[{p['t']}], power = t;", f"        for (k = 0; k < {n_p}; ++k) {{",
+                 "            power *= t;", "            for (a = 0; a < 3; ++a) {",
+                 "                drift[a] += M_POLY[a][k] * power;", "            }", "        }", "    }"]
+    return "\n".join(constants), "\n".join(body)
+
+
+def _poly(module: Any) -> tuple[dict[str, Any], Callable[[np.ndarray], np.ndarray]]:
+    """TempPolynomial: a polynomial in the clamped temperature minus T_ref."""
+    p = {"coef": _array(module, "coef"), "t": int(module.temp_index), "ref": float(_array(module, "temp_ref_c")),
+         "min": float(_array(module, "temp_min_c")), "max": float(_array(module, "temp_max_c"))}
+
+    def reference(x: np.ndarray) -> np.ndarray:
+        temp = np.clip(x[:, p["t"]], p["min"], p["max"]) - p["ref"]
+        return sum(np.outer(temp ** k, p["coef"][k]) for k in range(len(p["coef"])))
+
+    return p, reference
+
+
+def _poly_c(p: dict[str, Any]) -> tuple[str, str]:
+    n = len(p["coef"])
+    constants = f"static const float M_COEF[{n}][3] = {c_array(p['coef'])};"
+    body = [f"    float t = clampf(x[{p['t']}], {c_float(p['min'])}, {c_float(p['max'])}) - {c_float(p['ref'])};",
+            "    float power = 1.0f;", "    int k, a;", "    for (a = 0; a < 3; ++a) {",
+            "        drift[a] = M_COEF[0][a];", "    }", f"    for (k = 1; k < {n}; ++k) {{", "        power *= t;",
+            "        for (a = 0; a < 3; ++a) {", "            drift[a] += M_COEF[k][a] * power;", "        }", "    }"]
+    return constants, "\n".join(body)
+
+
+def _lsq(module: Any) -> tuple[dict[str, Any], Callable[[np.ndarray], np.ndarray]]:
+    """LinearFeatures: (x - mean) W + b."""
+    p = {"weight": _array(module, "weight"), "bias": _array(module, "bias"), "mean": _array(module, "x_mean")}
+    return p, lambda x: (x - p["mean"]) @ p["weight"] + p["bias"]
+
+
+def _lsq_c(p: dict[str, Any]) -> tuple[str, str]:
+    n = len(p["mean"])
+    constants = "\n".join([f"static const float M_MEAN[{n}] = {c_array(p['mean'])};",
+                           f"static const float M_WEIGHT[{n}][3] = {c_array(p['weight'])};",
+                           f"static const float M_BIAS[3] = {c_array(p['bias'])};"])
+    body = ["    int i, a;", "    for (a = 0; a < 3; ++a) {", "        drift[a] = M_BIAS[a];",
+            f"        for (i = 0; i < {n}; ++i) {{", "            drift[a] += (x[i] - M_MEAN[i]) * M_WEIGHT[i][a];",
+            "        }", "    }"]
+    return constants, "\n".join(body)
+
+
+KNOWN = {"RBFNet": (_rbf, _rbf_c), "TempPolynomial": (_poly, _poly_c), "LinearFeatures": (_lsq, _lsq_c)}
+
+
+def model_code(module: Any, x_scale: np.ndarray, x_centre: np.ndarray, source: str) -> ModelCode:
+    """The C of ``module`` (a non-frozen TorchScript module), checked against its forward.
+
+    ``x_centre`` and ``x_scale`` (per feature) place the probe inputs: centre +- 3 scales, beyond
+    the trained box, so the clamps are checked too.
+    """
+    import torch
+
+    kind = str(module.original_name)
+    if kind not in KNOWN:
+        raise BundleError(f"{source}: a {kind} model, which the C export does not know (it knows "
+                          f"{', '.join(KNOWN)}); add it to gyronet/deploy/c/_model.py")
+    read, to_c = KNOWN[kind]
+    params, reference = read(module)
+    rng = np.random.default_rng(0)
+    x = x_centre + x_scale * rng.uniform(-3.0, 3.0, (PROBE_ROWS, len(x_centre)))
+    with torch.no_grad():
+        expected = module(torch.from_numpy(x)).double().numpy()
+    ours = reference(x.copy())
+    error = float(np.max(np.abs(ours - expected)))
+    if not error <= CHECK_TOL * max(1.0, float(np.max(np.abs(expected)))):
+        raise BundleError(f"{source}: its {kind} computes something the C export does not (max difference "
+                          f"{error:.3g} deg/s on probe inputs): the model's form changed; update "
+                          "gyronet/deploy/c/_model.py")
+    constants, body = to_c(params)
+    n_numbers = sum(np.size(v) for v in params.values() if isinstance(v, np.ndarray))
+    return ModelCode(kind, constants, body, int(n_numbers))

@@ -1,0 +1,161 @@
+"""``format=c``: a bundle as a dependency-free C99 compensator for microcontrollers.
+
+``write_c`` writes ``gyronet_compensator.h`` and ``.c``: float32, no heap, no library calls but
+``expf`` and ``fabsf``, the whole causal compensator of ``Compensator.process`` for one sample
+(temperature guard, feature filters with their gap bridging and restarts, the model with its clamp,
+the out-of-range and bad-input flags, the start-up offset, the Kalman stage when the bundle has
+one). The templates are ``gyronet/deploy/c/*.in``; the generated parts come from
+``gyronet/deploy/c/_features.py``, ``_model.py`` and ``_kalman.py``.
+"""
+from __future__ import annotations
+
+import logging
+import re
+from pathlib import Path
+from typing import Any
+
+from gyronet.atomic import atomic_output
+from gyronet.bundle_schema import MODEL_FILE
+from gyronet.deploy.c import HERE, c_float
+from gyronet.deploy.c._features import aux_inputs, feature_code
+from gyronet.deploy.c._kalman import kalman_code, no_kalman
+from gyronet.deploy.c._model import model_code
+from gyronet.errors import BundleError
+from gyronet.features import GAP_FACTOR
+
+log = logging.getLogger(__name__)
+
+HEADER, SOURCE = "gyronet_compensator.h", "gyronet_compensator.c"
+DRIVER = HERE / "csv_driver.c"  # a host program that runs the compensator over a CSV (tests, bench)
+
+# (C type, name, count key or 1, comment): the state struct, in declaration order
+_STATE = [
+    ("double", "start_time_s", 1, "of the first sample since init (time features)"),
+    ("double", "last_time_s", 1, "of the last accepted sample"),
+    ("double", "guard_time_s", 1, "the temperature guard's last accepted reading"),
+    ("double", "candidate_start_s", 1, "a run of rejected readings that agree: a step being confirmed"),
+    ("double", "candidate_time_s", 1, ""),
+    ("double", "offset_still_s", 1, "start-up offset window"),
+    ("double", "offset_start_s", 1, ""),
+    ("double", "offset_sum_dps", 3, ""),
+    ("float", "last_row", "n_features", "features of the last accepted sample"),
+    ("float", "filter", "n_filter", "lag: output as a float pair; rate tracker: last input, level - input, slope"),
+    ("float", "play", "n_play", "hysteresis play operators"),
+    ("float", "guard_temp_c", 1, ""),
+    ("float", "candidate_temp_c", 1, ""),
+    ("float", "offset_dps", 3, "subtracted before the Kalman stage"),
+    ("float", "static_rate_dps", 3, ""),
+    ("float", "last_out_dps", 3, "what a bad gyro axis becomes"),
+    ("float", "kalman_x", "n_kalman", "Kalman state, the axes side by side"),
+    ("float", "kalman_p", "n_kalman_p", "its covariance blocks, during the gain transient"),
+    ("uint32_t", "kalman_n", 1, "samples filtered, up to the end of the gain transient"),
+    ("uint32_t", "offset_count", 1, ""),
+    ("uint32_t", "n_out_of_range", 1, "counts since init"),
+    ("uint32_t", "n_bad_input", 1, ""),
+    ("int", "started", 1, ""),
+    ("int", "have_last", 1, ""),
+    ("int", "guard_have", 1, ""),
+    ("int", "n_candidate", 1, ""),
+    ("int", "offset_mode", 1, "0 none, 1 armed, 2 in the window, 3 applied"),
+]
+# the template's optional helpers, and what a generated body calls them by
+_HELPERS = {"LAG": "lag_", "TRACKER": "tracker_", "CLAMP": "clampf(", "IPOW": "ipow("}
+_SIZES = {"double": 8, "float": 4, "uint32_t": 4, "int": 4}  # and their alignment (ILP32 and LP64 alike)
+
+
+def _state(counts: dict[str, int]) -> tuple[str, int]:
+    """The struct's fields as C, and its size in bytes (doubles first: no padding but at the end)."""
+    lines, size = [], 0
+    for ctype, name, count, comment in _STATE:
+        n = counts[count] if isinstance(count, str) else count
+        size += _SIZES[ctype] * n
+        field = f"{name}[{n}]" if n > 1 or isinstance(count, str) else name
+        lines.append(f"    {ctype} {field};" + (f" /* {comment} */" if comment else ""))
+    return "\n".join(lines), -(-size // 8) * 8
+
+
+def _fill(template: str, values: dict[str, str]) -> str:
+    for key, value in values.items():
+        template = template.replace(f"@{key}@", value)
+    left = re.search(r"@[A-Z_]+@", template)
+    if left:
+        raise AssertionError(f"template placeholder {left.group(0)} not filled")
+    return template
+
+
+def _load_module(bundle_dir: Path) -> Any:
+    """The TorchScript module with its buffers and parameters (``read_bundle`` freezes them away)."""
+    import torch
+
+    return torch.jit.load(str(bundle_dir / MODEL_FILE), map_location="cpu")
+
+
+def write_c(bundle_dir: Path, out_dir: Path) -> dict[str, Any]:
+    """Write ``out_dir/gyronet_compensator.{h,c}`` for the bundle; a bundle it cannot export is one BundleError line.
+
+    Returns a summary: ``files`` written, model ``kind``, ``state_bytes`` (``sizeof(gyronet_state)``),
+    ``aux_inputs``, ``kalman`` and ``kalman_transient_samples``.
+    """
+    from gyronet.compensator import Compensator
+
+    bundle_dir, out_dir = Path(bundle_dir), Path(out_dir)
+    compensator = Compensator.load(bundle_dir)  # every check a consumer makes, with its messages
+    meta = compensator.meta
+    specs, fs_hz = meta["features"], float(meta["fs_hz"])
+    aux = aux_inputs(specs, meta["input_columns"])
+    feats = feature_code(specs, fs_hz, aux, f"{bundle_dir}/meta.json")
+    model_path = f"{bundle_dir}/{MODEL_FILE}"
+    module = _load_module(bundle_dir)
+    centre, scale = _probe_box(module, meta)
+    model = model_code(module, scale, centre, model_path)
+    kalman = no_kalman() if compensator.kalman is None else kalman_code(compensator.kalman.to_dict(),
+                                                                         f"{bundle_dir}/kalman.json")
+    fields, state_bytes = _state({"n_features": len(specs), "n_filter": feats.n_filter, "n_play": feats.n_play,
+                                  "n_kalman": kalman.n_states, "n_kalman_p": kalman.n_covariance})
+    low, high = compensator.temp_range_c
+    aux_param = "\n                 const float *aux," if aux else ""
+    values = {
+        "VERSION": str(meta.get("gyronet_version", "unknown")),
+        "BUNDLE": (bundle_dir.name or str(bundle_dir)).replace("*/", "* /"),  # it goes into a comment
+        "MODEL_CLASS": model.kind, "FS_HZ": repr(fs_hz), "FEATURE_NAMES": ", ".join(meta["feature_names"]),
+        "TEMP_LOW_C": c_float(low), "TEMP_HIGH_C": c_float(high), "N_AUX": str(len(aux)),
+        "AUX_NAMES": ", ".join(aux) or "none", "HAS_KALMAN": str(int(compensator.kalman is not None)),
+        "STATE_FIELDS": fields, "AUX_PARAM": aux_param, "N_FEATURES": str(len(specs)),
+        "GAP_S": repr(GAP_FACTOR * (1.0 / fs_hz)),  # as FeatureExtractor computes it, to the last bit
+        "AUX_COPY": "\n".join(f"    v[{k + 1}] = aux[{k}];" for k in range(len(aux))),
+        "CONSTANTS": "\n".join(part for part in (feats.constants, model.constants, kalman.constants) if part),
+        "FEATURES_ACCEPTED": feats.accepted, "FEATURES_POWER_ON": feats.power_on, "TIME_FEATURES": feats.time,
+        "MODEL_BODY": model.body, "KALMAN_BODY": kalman.body,
+    }
+    code = "\n".join([feats.accepted, feats.power_on, model.body])
+    values["USES"] = "\n".join(f"#define USES_{name} {int(call in code)}" for name, call in _HELPERS.items())
+    out_dir.mkdir(parents=True, exist_ok=True)
+    written = []
+    for name in (HEADER, SOURCE):
+        text = _fill((HERE / f"{name}.in").read_text(), values)
+        with atomic_output(out_dir / name) as tmp:
+            tmp.write_text(text)
+        written.append(str(out_dir / name))
+    summary = {"files": written, "kind": model.kind, "state_bytes": state_bytes, "aux_inputs": aux,
+               "kalman": compensator.kalman is not None, "kalman_transient_samples": kalman.n_transient,
+               "model_numbers": model.n_numbers, "features": list(meta["feature_names"])}
+    log.info("C compensator (%s, state %d bytes) written to %s", model.kind, state_bytes, out_dir)
+    return summary
+
+
+def _probe_box(module: Any, meta: dict[str, Any]):
+    """Where to probe the model: its own normalisation when it has one, else the trained temperature range."""
+    import numpy as np
+
+    if hasattr(module, "x_std") and hasattr(module, "x_mean"):
+        return module.x_mean.double().numpy(), module.x_std.double().numpy()
+    low, high = meta["temp_range_c"]
+    n = len(meta["features"])
+    centre, scale = np.zeros(n), np.ones(n)
+    for i, spec in enumerate(meta["features"]):
+        if spec["kind"] == "temp":
+            centre[i], scale[i] = 0.5 * (low + high), max(0.5 * (high - low), 1.0)
+    return centre, scale
+
+
+__all__ = ["BundleError", "DRIVER", "HEADER", "SOURCE", "write_c"]

@@ -1,0 +1,285 @@
+"""The C99 compensator (gyronet.deploy.c_export): compiled with the system C compiler, checked against Compensator.
+
+Every bundle kind is exported, compiled with ``-std=c99 -Wall -Wextra -Werror -pedantic -O2`` and run
+by ``gyronet/deploy/c/csv_driver.c`` over a recording with lost samples, a confirmed temperature
+step, out-of-range temperatures and NaN / impossible inputs; its output must match
+``Compensator.process`` (what compensate.py runs) to 1e-4 deg/s and its flags exactly.
+"""
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from gyronet.compensator import Compensator
+from gyronet.data import GYRO_COLUMNS, load_recording, write_recording
+from gyronet.deploy.c_export import DRIVER, write_c
+from gyronet.errors import BundleError
+
+ROOT = Path(__file__).resolve().parents[1]
+CC = shutil.which("cc") or shutil.which("gcc")
+CFLAGS = ["-std=c99", "-Wall", "-Wextra", "-Werror", "-pedantic", "-O2"]
+TOL_DPS = 1e-4
+AUX = "vdd_v"
+
+pytestmark = pytest.mark.skipif(CC is None, reason="no C compiler (cc or gcc) on this machine")
+
+
+def _train(out: Path, csv: Path, model_factory, features=None, kalman=None) -> Path:
+    from gyronet.dataset import DriftData
+    from gyronet.pipeline import train_run
+
+    data = DriftData(str(csv)) if features is None else DriftData(str(csv), features=features)
+    kalman_cfg = None if kalman is None else {"enabled": True, **kalman}
+    train_run(data, model_factory(data.n_features), None, out, {"max_epochs": 30, "progress": False},
+              kalman_cfg=kalman_cfg)
+    return out / "compensator"
+
+
+@pytest.fixture(scope="module")
+def aux_csv(tmp_path_factory, paper_csv) -> Path:
+    """The paper recording with a supply-voltage column (an aux input) that sags as the board warms."""
+    recording = load_recording(paper_csv)
+    columns = dict(recording.columns)
+    columns[AUX] = 3.3 - 0.002 * (columns["temp_c"] - 25.0) + 1e-4 * np.sin(columns["time_s"] / 50.0)
+    path = tmp_path_factory.mktemp("aux") / "aux.csv"
+    write_recording(path, columns, {"fs_hz": "2"})
+    return path
+
+
+@pytest.fixture(scope="module")
+def bundles(tmp_path_factory, bundle, paper_csv, aux_csv) -> dict:
+    """One bundle of every kind: default RBFNet, with Kalman stages, the paper's RBF, poly3, lsq, every feature kind."""
+    from gyronet.baselines import LinearFeatures, TempPolynomial
+    from gyronet.model import RBFNet
+
+    root = tmp_path_factory.mktemp("c_bundles")
+    default = lambda n: RBFNet(n, 3, 8, rbf_inputs=[0], linear=True, temp_degree=3, clamp=True)  # noqa: E731
+    every_kind = [{"kind": "temp"}, {"kind": "rate", "tau_s": 5.0}, {"kind": "product"},
+                  {"kind": "lag", "tau_s": 600.0}, {"kind": "column", "source": AUX, "tau_s": 30.0},
+                  {"kind": "column", "source": AUX}, {"kind": "rate", "source": AUX, "tau_s": 20.0},
+                  {"kind": "hysteresis", "width": 0.5}, {"kind": "power", "exponent": 4, "centre": 10.0},
+                  {"kind": "time", "tau_s": 3600.0}, {"kind": "time"}]
+    return {
+        "default": bundle,
+        "kalman": _train(root / "kalman", paper_csv, default, kalman={"mode": "smooth", "q_rate_dps2_per_s": 0.01}),
+        # a narrow rate bandwidth: a long gain transient, and the drift estimate removed
+        "kalman_rate": _train(root / "kalman_rate", paper_csv, default,
+                              kalman={"mode": "rate", "q_rate_dps2_per_s": 1e-6}),
+        "paper_rbf": _train(root / "rbf", paper_csv, lambda n: RBFNet(n, 3, 32, rbf_inputs=None)),
+        "poly3": _train(root / "poly3", paper_csv, lambda n: TempPolynomial(n, 3, 3)),
+        "lsq": _train(root / "lsq", paper_csv, lambda n: LinearFeatures(n, 3)),
+        "aux": _train(root / "aux", aux_csv, default, features=every_kind),
+    }
+
+
+def _columns(csv: Path) -> dict:
+    return {k: np.array(v, dtype=np.float64) for k, v in load_recording(csv).columns.items()}
+
+
+def _hard(columns: dict) -> dict:
+    """Lost samples (bridged, restarted, an hour), bad rows first, NaN and impossible values, a confirmed step."""
+    n = len(columns["time_s"])
+    keep = np.ones(n, dtype=bool)
+    keep[1000:1002] = False  # 1.5 s: bridged by the rate tracker
+    keep[2000:2011] = False  # 6 s: longer than its tau, a restart
+    keep[5000:12200] = False  # an hour
+    out = {k: v[keep].copy() for k, v in columns.items()}
+    temp, gyro_x, gyro_z = out["temp_c"], out[GYRO_COLUMNS[0]], out[GYRO_COLUMNS[2]]
+    temp[:3] = np.nan  # rejected before any accepted sample
+    temp[[300, 301, 7000]] = np.nan
+    temp[[400, 8000]] = 1e6  # no sensor reads that
+    temp[9000] += 20.0  # a jump no thermal mass allows
+    # a real step, confirmed after 5 samples and 2 s, where it pushes the top beyond the trained range
+    temp[int(np.argmax(temp > np.nanmax(temp[temp < 1e3]) - 4.0)):] += 6.0
+    gyro_x[[500, 20000]] = np.nan
+    gyro_z[[600, 600 + 1, 25000]] = 1e5
+    if AUX in out:
+        out[AUX][[700, 26000]] = np.nan
+    return out
+
+
+def _python(bundle: Path, columns: dict, still_s: float = 0.0):
+    compensator = Compensator.load(bundle)
+    compensator.use_startup(still_s)
+    compensator.reset()
+    return compensator.process(columns)
+
+
+def _build(bundle: Path, work: Path) -> tuple[Path, dict]:
+    summary = write_c(bundle, work / "c")
+    obj = work / "gyronet_compensator.o"
+    subprocess.run([CC, *CFLAGS, "-c", str(work / "c" / "gyronet_compensator.c"), "-o", str(obj)], check=True)
+    exe = work / "driver"
+    subprocess.run([CC, *CFLAGS, "-I", str(work / "c"), str(DRIVER), str(obj), "-lm", "-o", str(exe)], check=True)
+    return exe, summary
+
+
+def _run_c(exe: Path, columns: dict, aux: list, work: Path, still_s: float = 0.0) -> np.ndarray:
+    names = ["time_s", "temp_c", *GYRO_COLUMNS, *aux]
+    np.savetxt(work / "in.csv", np.column_stack([columns[c] for c in names]), delimiter=",", fmt="%.17g",
+               header=",".join(names), comments="")
+    subprocess.run([str(exe), str(work / "in.csv"), str(work / "out.csv"), "1", repr(still_s)], check=True,
+                   capture_output=True)
+    return np.loadtxt(work / "out.csv", delimiter=",", skiprows=1, ndmin=2)
+
+
+def _check(c_out: np.ndarray, py) -> None:
+    flags = py.out_of_range.astype(int) + 2 * py.bad_input.astype(int)
+    np.testing.assert_array_equal(c_out[:, 3].astype(int), flags)
+    error = np.abs(c_out[:, :3] - py.rate_dps)
+    assert np.all(np.isfinite(c_out[:, :3]))
+    print(f"max |C - Python| {error.max():.3g} deg/s")
+    assert error.max() < TOL_DPS, f"max |C - Python| {error.max():.3g} deg/s at row {error.max(1).argmax()}"
+
+
+@pytest.mark.parametrize("kind", ["default", "kalman", "kalman_rate", "paper_rbf", "poly3", "lsq", "aux"])
+def test_c_matches_compensator_on_a_hard_recording(kind, bundles, paper_csv, aux_csv, tmp_path):
+    exe, summary = _build(bundles[kind], tmp_path)
+    columns = _hard(_columns(aux_csv if kind == "aux" else paper_csv))
+    py = _python(bundles[kind], columns)
+    assert py.out_of_range.sum() > 100 and py.bad_input.sum() >= 15  # the cases are really there
+    _check(_run_c(exe, columns, summary["aux_inputs"], tmp_path), py)
+    print(kind, summary)
+    assert summary["kalman"] == kind.startswith("kalman") and summary["aux_inputs"] == ([AUX] if kind == "aux" else [])
+
+
+def test_c_matches_compensate_py_with_a_startup_offset(bundles, paper_csv, tmp_path):
+    """compensate_file (compensate.py's code) on a CSV with gaps and startup.still_s, against the C."""
+    from gyronet.offline import compensate_file
+
+    columns = _columns(paper_csv)
+    keep = np.ones(len(columns["time_s"]), dtype=bool)
+    keep[3000:3010] = keep[40000:47000] = False
+    columns = {k: v[keep] for k, v in columns.items()}
+    csv = tmp_path / "gappy.csv"
+    write_recording(csv, columns, {"fs_hz": "2"})
+    compensate_file(bundles["kalman"], csv, tmp_path / "py.csv", startup={"still_s": 600.0})
+    py = load_recording(tmp_path / "py.csv").columns
+    exe, summary = _build(bundles["kalman"], tmp_path)
+    c_out = _run_c(exe, columns, [], tmp_path, still_s=600.0)
+    error = np.abs(c_out[:, :3] - np.column_stack([py[c] for c in GYRO_COLUMNS]))
+    assert error.max() < TOL_DPS
+    # the offset is really applied: without it the output differs by far more than the tolerance
+    plain = _run_c(exe, columns, [], tmp_path)
+    assert np.abs(plain[2000:, :3] - c_out[2000:, :3]).max() > 10 * TOL_DPS
+
+
+def test_state_size_and_symbols(bundles, tmp_path):
+    """sizeof(gyronet_state) is the size write_c reports; the object needs no heap and no libm but expf/fabsf."""
+    exe, summary = _build(bundles["kalman"], tmp_path)
+    probe = tmp_path / "size.c"
+    probe.write_text('#include <stdio.h>\n#include "gyronet_compensator.h"\n'
+                     'int main(void) { printf("%u\\n", (unsigned)sizeof(gyronet_state)); return 0; }\n')
+    subprocess.run([CC, *CFLAGS, "-I", str(tmp_path / "c"), str(probe), "-o", str(tmp_path / "size")], check=True)
+    size = int(subprocess.run([str(tmp_path / "size")], capture_output=True, text=True, check=True).stdout)
+    assert size == summary["state_bytes"]
+    nm = shutil.which("nm")
+    if nm:
+        undefined = subprocess.run([nm, "-u", str(tmp_path / "gyronet_compensator.o")], capture_output=True,
+                                   text=True, check=True).stdout.split()
+        assert set(undefined) - {"U"} <= {"expf", "fabsf", "memcpy", "memset"}
+
+
+def test_unknown_model_class_is_one_line(bundle, tmp_path):
+    """A bundle whose model is a class the generator does not know (a future PX4 polynomial) is refused in one line."""
+    from gyronet.export import load_bundle, save_bundle
+
+    class TempCubicPx4(torch.nn.Module):
+        def __init__(self):
+            super().__init__()
+            self.register_buffer("coef", torch.zeros(4, 3, dtype=torch.float64))
+
+        def forward(self, x: torch.Tensor) -> torch.Tensor:
+            return x[:, 0:1].pow(3) @ self.coef[3:4]
+
+    _, meta, _ = load_bundle(bundle)
+    meta = {k: v for k, v in meta.items() if k not in ("format", "gyronet_version", "sha256", "kalman")}
+    meta["model"] = {"class": "TempCubicPx4"}
+    save_bundle(TempCubicPx4(), meta, tmp_path / "b")
+    with pytest.raises(BundleError, match="TempCubicPx4 model, which the C export does not know") as err:
+        write_c(tmp_path / "b", tmp_path / "c")
+    assert "\n" not in str(err.value) and not (tmp_path / "c").exists()
+
+
+def test_a_changed_model_form_is_refused(bundle):
+    """If RBFNet's forward gains a term the generator does not know, the export fails instead of writing wrong C."""
+    from gyronet.deploy.c._model import model_code
+    from gyronet.model import RBFNet
+
+    net = RBFNet(3, 3, 4, rbf_inputs=[0], linear=True, temp_degree=3, clamp=True)
+    with torch.no_grad():
+        for p in net.parameters():
+            p.uniform_(-1.0, 1.0)
+    net.original_name = "RBFNet"
+    scale, centre = np.ones(3), np.zeros(3)
+    model_code(net, scale, centre, "ok")  # its own form: accepted
+    net.forward = lambda x: RBFNet.forward(net, x) + 1e-3 * x[:, 1:2]
+    with pytest.raises(BundleError, match="the model's form changed"):
+        model_code(net, scale, centre, "changed")
+
+
+def test_fractional_power_is_refused():
+    from gyronet.deploy.c._features import feature_code
+
+    with pytest.raises(BundleError, match="exponent 1.5 is not a whole number"):
+        feature_code([{"kind": "temp"}, {"kind": "power", "exponent": 1.5}], 2.0, [], "b")
+
+
+# Needs scripts/export.py, which comes from branch px4 (it dispatches format=c to write_c): skipped
+# until that branch is merged; the lead checks that it passes after the merge.
+@pytest.mark.skipif(not (ROOT / "scripts" / "export.py").exists(), reason="scripts/export.py arrives with branch px4")
+def test_export_command_writes_c(bundle, tmp_path):
+    out = tmp_path / "fw"
+    proc = subprocess.run([sys.executable, str(ROOT / "scripts" / "export.py"), f"model={bundle}", "format=c",
+                           f"output={out}", f"hydra.run.dir={tmp_path / 'hydra'}"], cwd=ROOT, capture_output=True,
+                          text=True)
+    assert proc.returncode == 0, proc.stderr
+    assert (out / "gyronet_compensator.h").is_file() and (out / "gyronet_compensator.c").is_file()
+
+
+@pytest.mark.slow
+def test_bench_row_quick(tmp_path):
+    """scripts/bench.py's c_compensator row runs (quick sizes) and its C agrees with Python."""
+    import json
+    import os
+
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")])}
+    proc = subprocess.run([sys.executable, str(ROOT / "scripts" / "bench.py"), "--quick", "--only", "c_compensator",
+                           "--json", str(tmp_path / "b.json"), "--work-dir", str(tmp_path)], cwd=ROOT, env=env,
+                          capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    (result,) = json.loads((tmp_path / "b.json").read_text())["rows"]
+    assert result["c_ns_per_sample"] > 0 and result["flash_bytes"]["-O2"] > 0
+    assert result["max_diff_dps"] < TOL_DPS
+
+
+@pytest.mark.slow
+def test_float32_at_1khz_with_a_long_lag_after_11_days(tmp_path):
+    """1 kHz, a 600 s lag, a clock at 1e6 s: where float32 state or time would break, the C still agrees."""
+    from gyronet.baselines import LinearFeatures
+    from gyronet.compensator import build_meta
+    from gyronet.export import save_bundle
+    from gyronet.features import feature_name
+
+    fs_hz, n = 1000.0, 600_000
+    specs = [{"kind": "temp"}, {"kind": "rate", "tau_s": 5.0}, {"kind": "product"}, {"kind": "lag", "tau_s": 600.0}]
+    model = LinearFeatures(len(specs))
+    with torch.no_grad():
+        model.weight.copy_(torch.tensor([[0.01, -0.02, 0.005], [2.0, 1.0, -1.5], [0.01, 0.02, 0.0],
+                                         [0.02, -0.01, 0.01]], dtype=torch.float64))
+        model.x_mean.copy_(torch.tensor([35.0, 0.0, 0.0, 35.0], dtype=torch.float64))
+    meta = build_meta(specs, [feature_name(s) for s in specs], fs_hz, (20.0, 50.0),
+                      ["time_s", "temp_c", *GYRO_COLUMNS], "0" * 64, {"class": "LinearFeatures"})
+    save_bundle(model, meta, tmp_path / "b")
+    rng = np.random.default_rng(3)
+    time_s = 1e6 + np.arange(n) / fs_hz
+    # a 0.05 degC/s ramp, quantised to 1/16 degC as sensors report it
+    temp_c = np.round((20.0 + 0.05 * (time_s - time_s[0])) * 16.0) / 16.0
+    columns = {"time_s": time_s, "temp_c": temp_c,
+               **{c: 0.1 + 0.01 * rng.standard_normal(n) for c in GYRO_COLUMNS}}
+    exe, _ = _build(tmp_path / "b", tmp_path)
+    _check(_run_c(exe, columns, [], tmp_path), _python(tmp_path / "b", columns))
