@@ -35,6 +35,12 @@ from omegaconf.errors import (ConfigAttributeError, ConfigKeyError, MissingManda
 
 from gyronet.errors import ConfigError, fail, in_chain, one_line, user_error
 
+# a launcher's workers (submitit's local processes, SLURM's jobs) are fresh interpreters that unpickle
+# the task function by module name: they inherit the environment, so they find this folder too
+_SCRIPTS = str(Path(__file__).resolve().parent)
+if _SCRIPTS not in os.environ.get("PYTHONPATH", "").split(os.pathsep):
+    os.environ["PYTHONPATH"] = os.pathsep.join(p for p in (_SCRIPTS, os.environ.get("PYTHONPATH")) if p)
+
 log = logging.getLogger(__name__)
 
 CONF_DIR = Path(__file__).resolve().parent.parent / "conf"

@@ -11,7 +11,6 @@ temperature range every unit must cover. When the launcher returns, ``S/fleet_ta
 """
 import datetime
 import json
-import os
 import re
 import sys
 from pathlib import Path
@@ -65,8 +64,6 @@ def main() -> None:
         sweep_dir = f"outputs/fleet/{datetime.datetime.now():%Y-%m-%d_%H-%M-%S}"
         rest.append(f"hydra.sweep.dir={sweep_dir}")
     write_units(sweep_dir, units)
-    # launcher workers (submitit's, SLURM's) are fresh processes: train.py's task needs scripts/_cli.py
-    os.environ["PYTHONPATH"] = os.pathsep.join(p for p in (str(SCRIPTS), os.environ.get("PYTHONPATH")) if p)
     sys.path.insert(0, str(SCRIPTS))
     import train  # noqa: E402 -- scripts/train.py, whose Hydra app runs each unit
 
