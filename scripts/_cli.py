@@ -19,6 +19,7 @@ import inspect
 import logging
 import os
 import re
+import sys
 import types
 import typing
 from pathlib import Path
@@ -74,6 +75,7 @@ def command(config_name: str, config_dir: str = "", schemas: Mapping[str, Any] |
 
         @functools.wraps(task)
         def main() -> Any:
+            _refuse_file_globs(sys.argv[1:], CONF_DIR / config_dir)
             # the user asked for Hydra's full tracebacks (not we, for a parent command)
             if os.environ.get("HYDRA_FULL_ERROR") == "1" and _OURS not in os.environ:
                 return hydra_main()
@@ -95,6 +97,16 @@ def command(config_name: str, config_dir: str = "", schemas: Mapping[str, Any] |
         return main
 
     return decorate
+
+
+def _refuse_file_globs(overrides: Sequence[str], conf_dir: Path) -> None:
+    """``key=glob(...)`` on a key that is not a config group: Hydra would sweep nothing and exit 0."""
+    for override in overrides:
+        key, sep, value = override.partition("=")
+        group = key.lstrip("+~").split("@")[0].replace(".", "/")
+        if sep and value.strip().startswith("glob(") and not (conf_dir / group).is_dir():
+            fail(f"{key}=glob(...) sweeps nothing: Hydra's glob() chooses among a config group's options, and "
+                 f"{key} is not a group; for recording files use scripts/fleet.py '{key}={value}'")
 
 
 def _guard(task: Task, schemas: Mapping[str, Any], required: Sequence[str]) -> Task:

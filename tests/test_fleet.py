@@ -107,6 +107,13 @@ def test_bad_fleet_input_is_one_line(tmp_path):
     assert done.returncode == 2 and done.stderr.strip().splitlines()[-1].startswith(f"error: {tmp_path}: no {UNITS_FILE}")
 
 
+
+def test_train_refuses_a_file_glob_that_hydra_would_sweep_as_nothing(tmp_path):
+    done = run("train.py", "-m", "data.path=glob(units/*.csv)", cwd=tmp_path)
+    assert done.returncode == 2 and "scripts/fleet.py" in done.stderr and len(done.stderr.strip().splitlines()) == 1
+    assert not (tmp_path / "multirun").exists()
+
+
 # --- end to end through the launchers -------------------------------------------------------
 
 def simulate_units(folder: Path, names: list[str]) -> None:
