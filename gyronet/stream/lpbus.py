@@ -82,6 +82,7 @@ class LpBusParser:
         self.check = check or SampleCheck()
         self._buffer = bytearray()
         self._garbage = bytearray()
+        self.probe = None  # a first-frames layout check (gyronet.stream.lpbus_probe.FirstFrames), or None
 
     @property
     def columns(self) -> list[str]:
@@ -188,6 +189,8 @@ class LpBusParser:
             return Fault("bad_length", frame, f"{header.length} data bytes, fields {list(self.layout.fields)} "
                                               f"need {self.layout.data_length}")
         time_s, values = self.layout.decode(data)
+        if self.probe is not None:
+            self.probe.see(time_s, values)  # raises LayoutError when the first frames do not fit the layout
         return self.check.check(time_s, values, frame)
 
     def _flush_garbage(self, out: list) -> None:

@@ -12,6 +12,11 @@ Two details keep the emulation lossless:
   reader's ``tcsetattr`` changes it, then a moment more, before sending.
 - Before it drops the port, it waits until the reader has read every byte (``FIONREAD`` on the
   slave stays 0 for a moment).
+
+With an emulated sensor (:class:`~gyronet.stream.lpbus_device.EmulatedLpms`, ``play_device``)
+the pty also answers the host's commands before it streams: the plan is then framed in the
+layout the host left the sensor in. A host that sends nothing within ``command_wait_s`` gets the
+sensor's power-on layout (a passive reader).
 """
 from __future__ import annotations
 
@@ -19,17 +24,22 @@ import fcntl
 import json
 import logging
 import os
+import select
 import struct
 import termios
 import threading
 import time
 import tty
 from pathlib import Path
-from typing import Callable, Sequence
+from typing import Callable, Mapping, Sequence
+
+import numpy as np
 
 from gyronet.data import load_recording
 from gyronet.errors import GyronetError
 from gyronet.stream.emulator import FaultPlan, StreamPlan, plan_stream
+from gyronet.stream.lpbus import encode_lpbus
+from gyronet.stream.lpbus_device import EmulatedLpms
 from gyronet.stream.lpbus_layout import LpBusLayout
 
 log = logging.getLogger(__name__)
@@ -127,16 +137,20 @@ class PtySensor:
 
 def play(plan: StreamPlan, sensor: PtySensor, speed: float = 1.0, reader_timeout_s: float = 30.0,
          port_down_s: float = 0.5, drain_timeout_s: float = 10.0,
-         clock: Callable[[], float] = time.monotonic, sleep: Callable[[float], None] = time.sleep) -> int:
+         clock: Callable[[], float] = time.monotonic, sleep: Callable[[float], None] = time.sleep,
+         opened: bool = False) -> int:
     """Send a plan into ``sensor``: in real time divided by ``speed`` (0: as fast as possible).
+
+    ``opened``: the pty is open and its reader there already (``play_device``).
 
     Returns
     -------
     int
         Number of events sent (drops included).
     """
-    sensor.open()
-    sensor.wait_for_reader(reader_timeout_s)
+    if not opened:
+        sensor.open()
+        sensor.wait_for_reader(reader_timeout_s)
     sensor.write(plan.preamble)
     if not plan.events:
         return 0
@@ -155,19 +169,82 @@ def play(plan: StreamPlan, sensor: PtySensor, speed: float = 1.0, reader_timeout
 
 
 
-def play_in_thread(plan: StreamPlan, link: str | Path, **play_options) -> threading.Thread:
+def serve_commands(device: EmulatedLpms, sensor: PtySensor, command_wait_s: float = 1.0, idle_s: float = 2.0,
+                   preroll: bytes = b"") -> bool:
+    """Answer the host's commands until it puts the sensor back to streaming; False if it sent none.
+
+    ``preroll``: sensor-data frames sent first, as a sensor streams from power-on (the host must
+    skip them while it waits for its answers).
+    """
+    sensor.write(preroll)
+    deadline = time.monotonic() + command_wait_s
+    while True:
+        left_s = deadline - time.monotonic()
+        if left_s <= 0:
+            return bool(device.commands)
+        ready, _, _ = select.select([sensor.master_fd], [], [], left_s)
+        if not ready:
+            continue
+        for reply in device.feed(os.read(sensor.master_fd, 4096)):
+            sensor.write(reply)
+        if device.commands:
+            if device.streaming:
+                return True
+            deadline = time.monotonic() + idle_s
+
+
+def play_device(device: EmulatedLpms, make_plan: Callable[[LpBusLayout], StreamPlan], sensor: PtySensor,
+                speed: float = 1.0, command_wait_s: float = 1.0, preroll_frames: int = 0,
+                preroll_row: Mapping[str, float] | None = None, **play_options) -> StreamPlan:
+    """Open the pty, answer the host's set-up, then play ``make_plan(layout the host left)``; return the plan."""
+    reader_timeout_s = float(play_options.pop("reader_timeout_s", 30.0))
+    sensor.open()
+    sensor.wait_for_reader(reader_timeout_s)
+    preroll = b"".join(encode_lpbus(preroll_row, device.layout(), device.sensor_id)
+                       for _ in range(preroll_frames)) if preroll_row is not None else b""
+    talked = serve_commands(device, sensor, command_wait_s, preroll=preroll)
+    log.info("emulated %s %s; streaming %s", device.model, "configured by the host" if talked else "not configured",
+             device.layout().describe())
+    plan = make_plan(device.layout())
+    play(plan, sensor, speed, reader_timeout_s=reader_timeout_s, opened=True, **play_options)
+    return plan
+
+
+def fill_columns(columns: Mapping[str, np.ndarray], layout: LpBusLayout) -> dict[str, np.ndarray]:
+    """``columns`` with what ``layout`` sends but the recording lacks: 1 g on z, a unit quaternion, else 0."""
+    n = len(columns["time_s"])
+    out = dict(columns)
+    for name in layout.columns:
+        if name not in out:
+            out[name] = np.full(n, 1.0 if name in ("acc_z_g", "acccal_z_g", "quat_w") else 0.0)
+    return out
+
+
+def play_in_thread(plan: StreamPlan | None, link: str | Path, device: EmulatedLpms | None = None,
+                   columns: Mapping[str, np.ndarray] | None = None, faults: FaultPlan | None = None,
+                   **play_options) -> threading.Thread:
     """Play ``plan`` into a new pseudo-terminal at ``link`` from a daemon thread (tests, in-process
-    benchmarks); the port is closed and its link removed when the plan ends."""
+    benchmarks); the port is closed and its link removed when the plan ends.
+
+    With ``device``, the pty answers the host's commands first and then plays ``columns`` (with
+    ``faults``) framed in the layout the host left (the thread's ``plan`` attribute holds it).
+    """
     sensor = PtySensor(link)
+    options = {"speed": 0, "reader_timeout_s": 20, "port_down_s": 0.2, **play_options}
 
     def emulate() -> None:
         try:
-            play(plan, sensor, **{"speed": 0, "reader_timeout_s": 20, "port_down_s": 0.2, **play_options})
+            if device is None:
+                play(plan, sensor, **options)
+            else:
+                thread.plan = play_device(device, lambda layout: plan_stream(
+                    fill_columns(columns, layout), "lpbus", faults, layout), sensor, **options)
         finally:
             sensor.close()
             sensor.remove_link()
 
     thread = threading.Thread(target=emulate, daemon=True)
+    thread.plan = plan
     thread.start()
     return thread
 
@@ -187,32 +264,50 @@ def emulate_file(input_path: str | os.PathLike, protocol: str = "lpbus", speed: 
                  faults: FaultPlan | None = None, layout: LpBusLayout | None = None,
                  csv_columns: Sequence[str] | None = None, link: str | None = None, port_file: str | None = None,
                  log_file: str | os.PathLike | None = None, port_down_s: float = 0.5,
-                 reader_timeout_s: float = 30.0) -> dict:
+                 reader_timeout_s: float = 30.0, device: EmulatedLpms | None = None,
+                 command_wait_s: float = 1.0) -> dict:
     """``emulate_sensor.py``: play a recording into a pty as a sensor would; return the log.
 
     The log (see :func:`gyronet.stream.emulator.plan_stream`) is written to ``log_file`` before
-    the first byte is sent, since the plan is fixed by the seed.
+    the first sample is sent, since the plan is fixed by the seed. With ``device`` (LP-BUS only),
+    the pty first answers the host's commands (``layout`` is then unused: the frames follow the
+    layout the host set), and the log also holds the commands received and the final layout.
     """
     recording = load_recording(input_path)
-    try:
-        plan = plan_stream(recording.columns, protocol, faults, layout, csv_columns)
-    except (ValueError, KeyError) as err:
-        raise GyronetError(f"{input_path}: {err}") from None
-    plan.log.update(input=str(input_path), speed=speed)
-    if log_file is not None:
-        _write_atomic(Path(log_file), json.dumps(plan.log) + "\n")
-    log.info("%d samples to send as %s, %d intact; faults planned: %s", len(recording), protocol,
-             len(plan.log["good_indices"]), plan.log["expected_faults"] or "none")
+    if device is not None and protocol != "lpbus":
+        raise GyronetError("an emulated sensor (sensor.model) speaks LP-BUS: set protocol=lpbus or sensor.model=null")
+
+    def make_plan(frame_layout: LpBusLayout | None) -> StreamPlan:
+        columns = recording.columns if device is None else fill_columns(recording.columns, frame_layout)
+        try:
+            plan = plan_stream(columns, protocol, faults, frame_layout, csv_columns)
+        except (ValueError, KeyError) as err:
+            raise GyronetError(f"{input_path}: {err}") from None
+        plan.log.update(input=str(input_path), speed=speed)
+        if device is not None:
+            plan.log.update(sensor=device.model, layout=frame_layout.describe(), commands=list(device.commands))
+        if log_file is not None:
+            _write_atomic(Path(log_file), json.dumps(plan.log) + "\n")
+        log.info("%d samples to send as %s, %d intact; faults planned: %s", len(recording), protocol,
+                 len(plan.log["good_indices"]), plan.log["expected_faults"] or "none")
+        return plan
+
     sensor = PtySensor(link, port_file)
+    plan = None
     try:
-        play(plan, sensor, speed, reader_timeout_s=reader_timeout_s, port_down_s=port_down_s)
+        if device is None:
+            plan = make_plan(layout)
+            play(plan, sensor, speed, reader_timeout_s=reader_timeout_s, port_down_s=port_down_s)
+        else:
+            plan = play_device(device, make_plan, sensor, speed, command_wait_s=command_wait_s,
+                               reader_timeout_s=reader_timeout_s, port_down_s=port_down_s)
         log.info("all sent")
     except KeyboardInterrupt:
         log.info("stopped")
     finally:
         sensor.close()
         sensor.remove_link()
-    return plan.log
+    return plan.log if plan is not None else {}
 
 
 def _write_atomic(path: Path, text: str) -> None:
