@@ -88,6 +88,10 @@ class LpBusParser:
     def columns(self) -> list[str]:
         return self.layout.columns
 
+    def prime(self, data: bytes) -> None:
+        """Bytes read before the sample loop (what followed the set-up's last answer): parsed with the next feed."""
+        self._buffer += data
+
     def feed(self, data: bytes) -> list[Sample | Fault]:
         """Parse what ``data`` completes; keep the rest for the next call."""
         self._buffer += data

@@ -48,9 +48,12 @@ class SensorInfo:
     register: int
     changed: list[str] = field(default_factory=list)
     gyro_source: str = "raw"
+    leftover: bytes = b""  # bytes read after the last answer: the first sensor-data frames
+
 
     def as_dict(self) -> dict[str, Any]:
         out = asdict(self)
+        del out["leftover"]
         out["layout"] = self.layout.describe()
         out["register"] = f"0x{self.register:08x}"
         return out
@@ -91,6 +94,7 @@ def configure_sensor(port, wanted: Wanted, timeout_s: float = 1.0) -> SensorInfo
         link.set(legacy.WRITE_REGISTERS if info.generation == "legacy" else ig1.WRITE_REGISTERS, "WRITE_REGISTERS")
         info.changed.append("saved to the sensor's flash")
     link.set(legacy.GOTO_STREAM_MODE, "GOTO_STREAM_MODE")
+    info.leftover = bytes(link.reader.rest())
     if link.skipped_data_frames:
         log.debug("%d sensor-data frames skipped while configuring", link.skipped_data_frames)
     return info

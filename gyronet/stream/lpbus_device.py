@@ -40,7 +40,7 @@ class EmulatedLpms:
         The id in the frames it sends.
     """
 
-    model: str = "LPMS-CU2"
+    model: str | None = "LPMS-CU2"
     firmware: tuple[int, int, int] = (2, 0, 5)
     rate_hz: int = 100
     fields: tuple[str, ...] = ("quaternion", "euler")
@@ -53,6 +53,8 @@ class EmulatedLpms:
     commands: list[int] = field(default_factory=list)
 
     def __post_init__(self) -> None:
+        if not self.model:
+            raise ValueError("an emulated LPMS needs a model name (LPMS-CU2, LPMS-IG1-RS232, ...)")
         self.fields = tuple(self.fields) if self.fields is not None else DEFAULT_FIELDS
         self._reader = FrameReader()
         self.layout()  # the settings must make a layout

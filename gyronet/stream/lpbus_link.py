@@ -33,6 +33,10 @@ class FrameReader:
     def __init__(self) -> None:
         self._buffer = bytearray()
 
+    def rest(self) -> bytes:
+        """The bytes not yet framed (the start of what follows the last frame taken)."""
+        return bytes(self._buffer)
+
     def feed(self, data: bytes) -> Iterator[tuple[int, int, bytes]]:
         """Yield ``(sensor_id, command, data)`` for every complete frame ``data`` finishes."""
         self._buffer += data

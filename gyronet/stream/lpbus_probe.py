@@ -8,12 +8,14 @@ read about 1 g. A stream faster than the timestamp clock repeats its times. So t
 are checked, where the layout makes it possible:
 
 - times: more than a quarter of the intervals not increasing means ``timestamp_hz`` is wrong;
-- acceleration, when the layout has it: the median of |a| must lie within 0.25-4 g (1 g at rest;
+- acceleration, when the layout has it: the median of |a| must lie within 0.7-1.5 g (1 g at rest;
   a moving sensor's median stays near it);
 - temperature: the median must lie within -60-150 degC.
 
-A layout without acceleration cannot be told from another of its length this way: configure
-the sensor (``lpbus.configure=true``) to be sure.
+What passes nonetheless: a misread whose gyro, read in the accelerometer's place, turns at
+about 1 deg/s (an IG1 read as legacy; its 500 Hz clock read at 400 Hz still fails the live rate
+check unless ``resample=true``), and any layout without acceleration. Configure the sensor
+(``lpbus.configure=true``) to be sure.
 """
 from __future__ import annotations
 
@@ -23,7 +25,7 @@ import statistics
 from gyronet.errors import GyronetError
 from gyronet.stream.lpbus_layout import LpBusLayout
 
-ACC_RANGE_G = (0.25, 4.0)
+ACC_RANGE_G = (0.7, 1.5)
 TEMP_RANGE_C = (-60.0, 150.0)
 MAX_NOT_INCREASING = 0.25
 

@@ -102,6 +102,8 @@ class LpBusStart:
     def parser(self, check=None) -> LpBusParser:
         parser = LpBusParser(self.layout, check=check)
         parser.probe = self.probe
+        if self.sensor is not None:
+            parser.prime(self.sensor.leftover)
         return parser
 
     def as_dict(self) -> dict[str, Any]:
