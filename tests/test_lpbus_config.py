@@ -218,3 +218,29 @@ def test_setup_refuses_a_bundle_trained_on_the_host_corrected_gyro():
         start_lpbus(None, "loop://", LpBusSetup(configure=False), {"fs_hz": 10.0, "gyro_source": "host_corrected"})
     start = start_lpbus(None, "loop://", LpBusSetup(configure=False), {"fs_hz": 10.0, "gyro_source": "raw"})
     assert start.sensor is None and start.probe is not None
+
+
+def test_bundles_record_which_gyro_they_were_trained_on(paper_csv, bundle, tmp_path):
+    import torch
+
+    from gyronet.bundle_schema import gyro_source_of, validate_meta
+    from gyronet.compensator import Compensator
+    from gyronet.data import load_recording, write_recording
+    from gyronet.dataset import DriftData
+    from gyronet.errors import BundleError
+    from gyronet.pipeline import _meta
+
+    assert gyro_source_of([{}, {}]) is None
+    assert gyro_source_of([{"gyro_source": "raw"}, {"gyro_source": "host_corrected"}]) == "host_corrected"
+    recording = load_recording(paper_csv).slice(slice(0, 4000))
+    log = write_recording(tmp_path / "lpms.csv", recording.columns, {**recording.meta, "gyro_source": "host_corrected"})
+    data = DriftData(str(log))
+    meta = _meta(torch.nn.Linear(data.n_features, 3), data)
+    assert meta["gyro_source"] == "host_corrected"
+    validate_meta({**meta, "format": 1})
+    with pytest.raises(BundleError, match="'gyro_source' must be one of"):
+        validate_meta({**meta, "format": 1, "gyro_source": "filtered"})
+    older = Compensator.load(bundle).meta  # a bundle without the field (trained on the simulator) still streams
+    from gyronet.stream.lpbus_setup import start_lpbus
+
+    assert "gyro_source" not in older and start_lpbus(None, "loop://", LpBusSetup(configure=False), older).layout

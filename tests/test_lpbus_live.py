@@ -108,7 +108,7 @@ def test_passive_reader_of_an_ig1_with_the_legacy_layout_is_refused(bundle, shor
     recording = load_recording(short_recording)
     device = EmulatedLpms(model="LPMS-IG1-RS232", fields=("acc", "gyro", "temperature"), rate_hz=10)
     link = tmp_path / "sensor"
-    thread = started(play_in_thread(None, link, device=device, columns=recording.columns, command_wait_s=0.2),
+    started(play_in_thread(None, link, device=device, columns=recording.columns, command_wait_s=0.2),
                      link)
     with pytest.raises(LayoutError, match=r"register bits legacy 11, 12, 13\).*lpbus.configure=true"):
         run_stream(bundle, str(link), tmp_path / "live.csv", allan_every_s=0, reconnect=FAST,

@@ -24,7 +24,6 @@ from gyronet.stream.lpbus_probe import FirstFrames
 log = logging.getLogger(__name__)
 
 RATE_TOLERANCE = 0.05  # as the live rate check (gyronet.stream.live.RateGate)
-GYRO_SOURCES = ("raw", "host_corrected")
 
 
 @dataclass(frozen=True)
