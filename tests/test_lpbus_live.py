@@ -13,7 +13,8 @@ from gyronet.stream import FaultPlan
 from gyronet.stream.lpbus_device import EmulatedLpms
 from gyronet.stream.lpbus_probe import LayoutError
 from gyronet.stream.lpbus_setup import LpBusSetup
-from gyronet.stream.pty_sensor import fill_columns, play_in_thread
+from gyronet.stream.pty_device import fill_columns
+from gyronet.stream.pty_sensor import play_in_thread
 
 N_SAMPLES = 300
 FAST = {"backoff_s": 0.05, "max_backoff_s": 0.2, "give_up_s": 0.5}

@@ -13,8 +13,8 @@ Two details keep the emulation lossless:
 - Before it drops the port, it waits until the reader has read every byte (``FIONREAD`` on the
   slave stays 0 for a moment).
 
-With an emulated sensor (:class:`~gyronet.stream.lpbus_device.EmulatedLpms`, ``play_device``)
-the pty also answers the host's commands before it streams: the plan is then framed in the
+With an emulated sensor (:class:`~gyronet.stream.lpbus_device.EmulatedLpms`,
+:func:`gyronet.stream.pty_device.play_device`) the pty also answers the host's commands before it streams: the plan is then framed in the
 layout the host left the sensor in. A host that sends nothing within ``command_wait_s`` gets the
 sensor's power-on layout (a passive reader).
 """
@@ -24,7 +24,6 @@ import fcntl
 import json
 import logging
 import os
-import select
 import struct
 import termios
 import threading
@@ -38,7 +37,6 @@ import numpy as np
 from gyronet.data import load_recording
 from gyronet.errors import GyronetError
 from gyronet.stream.emulator import FaultPlan, StreamPlan, plan_stream
-from gyronet.stream.lpbus import encode_lpbus
 from gyronet.stream.lpbus_device import EmulatedLpms
 from gyronet.stream.lpbus_layout import LpBusLayout
 
@@ -169,57 +167,6 @@ def play(plan: StreamPlan, sensor: PtySensor, speed: float = 1.0, reader_timeout
 
 
 
-def serve_commands(device: EmulatedLpms, sensor: PtySensor, command_wait_s: float = 1.0, idle_s: float = 2.0,
-                   preroll: bytes = b"") -> bool:
-    """Answer the host's commands until it puts the sensor back to streaming; False if it sent none.
-
-    ``preroll``: sensor-data frames sent first, as a sensor streams from power-on (the host must
-    skip them while it waits for its answers).
-    """
-    sensor.write(preroll)
-    deadline = time.monotonic() + command_wait_s
-    while True:
-        left_s = deadline - time.monotonic()
-        if left_s <= 0:
-            return bool(device.commands)
-        ready, _, _ = select.select([sensor.master_fd], [], [], left_s)
-        if not ready:
-            continue
-        for reply in device.feed(os.read(sensor.master_fd, 4096)):
-            sensor.write(reply)
-        if device.commands:
-            if device.streaming:
-                return True
-            deadline = time.monotonic() + idle_s
-
-
-def play_device(device: EmulatedLpms, make_plan: Callable[[LpBusLayout], StreamPlan], sensor: PtySensor,
-                speed: float = 1.0, command_wait_s: float = 1.0, preroll_frames: int = 0,
-                preroll_row: Mapping[str, float] | None = None, **play_options) -> StreamPlan:
-    """Open the pty, answer the host's set-up, then play ``make_plan(layout the host left)``; return the plan."""
-    reader_timeout_s = float(play_options.pop("reader_timeout_s", 30.0))
-    sensor.open()
-    sensor.wait_for_reader(reader_timeout_s)
-    preroll = b"".join(encode_lpbus(preroll_row, device.layout(), device.sensor_id)
-                       for _ in range(preroll_frames)) if preroll_row is not None else b""
-    talked = serve_commands(device, sensor, command_wait_s, preroll=preroll)
-    log.info("emulated %s %s; streaming %s", device.model, "configured by the host" if talked else "not configured",
-             device.layout().describe())
-    plan = make_plan(device.layout())
-    play(plan, sensor, speed, reader_timeout_s=reader_timeout_s, opened=True, **play_options)
-    return plan
-
-
-def fill_columns(columns: Mapping[str, np.ndarray], layout: LpBusLayout) -> dict[str, np.ndarray]:
-    """``columns`` with what ``layout`` sends but the recording lacks: 1 g on z, a unit quaternion, else 0."""
-    n = len(columns["time_s"])
-    out = dict(columns)
-    for name in layout.columns:
-        if name not in out:
-            out[name] = np.full(n, 1.0 if name in ("acc_z_g", "acccal_z_g", "quat_w") else 0.0)
-    return out
-
-
 def play_in_thread(plan: StreamPlan | None, link: str | Path, device: EmulatedLpms | None = None,
                    columns: Mapping[str, np.ndarray] | None = None, faults: FaultPlan | None = None,
                    **play_options) -> threading.Thread:
@@ -229,6 +176,8 @@ def play_in_thread(plan: StreamPlan | None, link: str | Path, device: EmulatedLp
     With ``device``, the pty answers the host's commands first and then plays ``columns`` (with
     ``faults``) framed in the layout the host left (the thread's ``plan`` attribute holds it).
     """
+    from gyronet.stream.pty_device import fill_columns, play_device
+
     sensor = PtySensor(link)
     options = {"speed": 0, "reader_timeout_s": 20, "port_down_s": 0.2, **play_options}
 
@@ -273,6 +222,8 @@ def emulate_file(input_path: str | os.PathLike, protocol: str = "lpbus", speed: 
     the pty first answers the host's commands (``layout`` is then unused: the frames follow the
     layout the host set), and the log also holds the commands received and the final layout.
     """
+    from gyronet.stream.pty_device import fill_columns, play_device
+
     recording = load_recording(input_path)
     if device is not None and protocol != "lpbus":
         raise GyronetError("an emulated sensor (sensor.model) speaks LP-BUS: set protocol=lpbus or sensor.model=null")
