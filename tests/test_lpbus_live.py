@@ -137,3 +137,38 @@ def test_record_sets_the_sensor_up_and_writes_a_recording(short_recording, tmp_p
     rows = [layout.quantize({c: float(filled[c][i]) for c in layout.columns}) for i in range(N_SAMPLES)]
     for column in ("time_s", "temp_c", *GYRO_COLUMNS, "acc_z_g"):
         np.testing.assert_array_equal(saved.columns[column], [row[column] for row in rows])
+
+
+@pytest.mark.slow
+def test_scripts_configure_an_emulated_ig1_and_refuse_a_silent_port_in_one_line(bundle, short_recording, tmp_path):
+    """emulate_sensor.py sensor.model=... -> pty -> stream.py lpbus.configure=true; record.py on a mute port."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    link = tmp_path / "sensor"
+    emulator = subprocess.Popen([sys.executable, "scripts/emulate_sensor.py", f"input={short_recording}", "speed=0",
+                                 "sensor.model=LPMS-IG1-RS232", f"link={link}", f"log_file={tmp_path / 'emu.json'}",
+                                 f"hydra.run.dir={tmp_path / 'emu'}"], cwd=root, stdout=subprocess.DEVNULL,
+                                stderr=subprocess.STDOUT)
+    try:
+        started(emulator, link, timeout_s=60)
+        result = subprocess.run([sys.executable, "scripts/stream.py", f"model={bundle}", f"port={link}",
+                                 f"output={tmp_path / 'live.csv'}", "lpbus.configure=true", "resample=true",
+                                 "reconnect.give_up_s=0.5", "allan_every_s=0", f"hydra.run.dir={tmp_path / 'run'}"],
+                                cwd=root, capture_output=True, text=True, timeout=120)
+        emulator.wait(60)
+    finally:
+        emulator.kill()
+    assert result.returncode == 0, result.stderr[-2000:]
+    summary = json.loads((tmp_path / "run" / "stream_summary.json").read_text())
+    emulated = json.loads((tmp_path / "emu.json").read_text())
+    assert summary["sensor"]["model"] == "LPMS-IG1-RS232" and "acc" in summary["sensor"]["layout"]
+    assert summary["n_samples"] == len(emulated["good_indices"]) == N_SAMPLES
+    assert emulated["commands"][:4] == [6, 21, 20, 31] and emulated["commands"][-1] == 7
+    failed = subprocess.run([sys.executable, "scripts/record.py", "port=loop://", f"output={tmp_path / 'r.csv'}",
+                             "lpbus.configure=true", "lpbus.timeout_s=0.2", f"hydra.run.dir={tmp_path / 'rec'}"],
+                            cwd=root, capture_output=True, text=True, timeout=120)
+    assert failed.returncode == 2 and len(failed.stderr.strip().splitlines()) == 1
+    assert failed.stderr.startswith("error: loop://: no answer to GOTO_COMMAND_MODE (command 6)")
