@@ -21,7 +21,7 @@ from gyronet.stream.lpbus import lpbus_frame
 from gyronet.stream.lpbus_layout import DEFAULT_FIELDS, LpBusLayout
 from gyronet.stream.lpbus_link import FrameReader
 
-IG1_MODELS = ("LPMS-IG1", "LPMS-BE1", "LPMS-ME1", "LPMS-NAV3", "LPMS-IG1P")
+IG1_MODELS = ("LPMS-IG1", "LPMS-BE1", "LPMS-ME1")  # emulator only: real sensors are told apart by command 21
 
 
 @dataclass
@@ -44,7 +44,7 @@ class EmulatedLpms:
     firmware: tuple[int, int, int] = (2, 0, 5)
     rate_hz: int = 100
     fields: tuple[str, ...] = ("quaternion", "euler")
-    precision: int = 32
+    precision: int = 16
     gyro_autocalibration: bool = True
     radians: bool = False
     sensor_id: int = 1

@@ -160,8 +160,11 @@ def _report(port_name: str, info: SensorInfo) -> None:
     log.info("%s: %s, firmware %s, %g Hz: %s", port_name, info.model, info.firmware, info.rate_hz,
              info.layout.describe())
     if info.changed:
-        log.info("%s: set %s (in RAM%s)", port_name, "; ".join(info.changed),
-                 "" if "saved to the sensor's flash" in info.changed else "; lpbus.save=true keeps it over a power cycle")
+        saved = "saved to the sensor's flash" in info.changed
+        log.warning("%s: set %s; the sensor keeps these settings after gyronet stops (%s): other software that "
+                    "relies on them (gyro auto-calibration, other outputs) needs them set back in LPMS-Control",
+                    port_name, "; ".join(info.changed),
+                    "for good" if saved else "until it is powered off; lpbus.save=true keeps them for good")
     if info.gyro_autocalibration:
         log.warning("%s: the sensor's gyro auto-calibration is ON: it re-zeroes the gyro when still and removes "
                     "the drift a thermal calibration must learn", port_name)
