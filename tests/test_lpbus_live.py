@@ -107,7 +107,7 @@ def test_passive_reader_of_an_ig1_with_the_legacy_layout_is_refused(bundle, shor
     from gyronet.stream.live import run_stream
 
     recording = load_recording(short_recording)
-    device = EmulatedLpms(model="LPMS-IG1-RS232", fields=("acc", "gyro", "temperature"), rate_hz=10)
+    device = EmulatedLpms(model="LPMS-IG1-RS232", fields=("acc", "gyro", "temperature"), rate_hz=10, precision=32)
     link = tmp_path / "sensor"
     started(play_in_thread(None, link, device=device, columns=recording.columns, command_wait_s=0.2),
                      link)
