@@ -1,4 +1,4 @@
-"""Record a calibration run from an LP-BUS sensor, set up first: python scripts/record.py port=P output=F.csv lpbus.rate_hz=100."""
+"""Record a calibration run from an LPMS sensor, set up first: python scripts/record.py port=P output=F.csv."""
 import sys
 from pathlib import Path
 

@@ -11,7 +11,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))  # scripts/_cli.py, als
 from _cli import command  # noqa: E402
 
 
-@command("stream", "deploy", schemas={"lpbus": "gyronet.stream.lpbus_setup.LpBusSetup"}, required=("model", "port", "output"))
+@command("stream", "deploy", schemas={"lpbus": "gyronet.stream.lpbus_setup.LpBusSetup"},
+         required=("model", "port", "output"))
 def main(cfg: DictConfig) -> None:
     options = OmegaConf.to_container(cfg, resolve=True)
     with stop_on_signals() as stop:  # SIGINT and SIGTERM alike, whatever the parent left them as

@@ -113,7 +113,7 @@ class EmulatedLpms:
         if command == legacy.GET_IMU_ID:
             return self._frame(command, struct.pack("<I", self.sensor_id))
         if command == legacy.GET_DEVICE_NAME:
-            return self._frame(command, self.model.encode()[:legacy.DEVICE_NAME_BYTES].ljust(legacy.DEVICE_NAME_BYTES, b"\0"))
+            return self._frame(command, _padded(self.model, legacy.DEVICE_NAME_BYTES))
         if command == legacy.GET_FIRMWARE_VERSION:
             major, minor, patch = self.firmware
             return self._frame(command, struct.pack("<3i", patch, minor, major))
@@ -147,7 +147,7 @@ class EmulatedLpms:
             return common
         text = {ig1.GET_SENSOR_MODEL: self.model, ig1.GET_FIRMWARE_INFO: "v%d.%d.%d" % self.firmware}
         if command in text:
-            return self._frame(command, text[command].encode()[:ig1.STRING_BYTES].ljust(ig1.STRING_BYTES, b"\0"))
+            return self._frame(command, _padded(text[command], ig1.STRING_BYTES))
         gets = {ig1.GET_TRANSMIT_DATA: lambda: self.layout().config_register,
                 ig1.GET_STREAM_FREQ: lambda: self.rate_hz,
                 ig1.GET_DEGRAD_OUTPUT: lambda: int(self.radians),
@@ -180,3 +180,8 @@ class EmulatedLpms:
         else:
             return None
         return self._ack()
+
+
+def _padded(text: str, n_bytes: int) -> bytes:
+    """``text`` in ASCII, cut or padded with NUL to ``n_bytes`` (how the sensors send names)."""
+    return text.encode()[:n_bytes].ljust(n_bytes, b"\0")

@@ -20,10 +20,6 @@ class LpBusField:
     scale_16bit: float
     scale_16bit_rad: float | None = None
 
-    @property
-    def radians(self) -> bool:  # the old name of ``angular`` for legacy fields (always rad)
-        return self.angular
-
     def scale(self, radians: bool) -> float:
         """The 16-bit scale for the unit the sensor sends."""
         return self.scale_16bit_rad if radians and self.scale_16bit_rad is not None else self.scale_16bit

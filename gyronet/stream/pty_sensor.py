@@ -14,9 +14,9 @@ Two details keep the emulation lossless:
   slave stays 0 for a moment).
 
 With an emulated sensor (:class:`~gyronet.stream.lpbus_device.EmulatedLpms`,
-:func:`gyronet.stream.pty_device.play_device`) the pty also answers the host's commands before it streams: the plan is then framed in the
-layout the host left the sensor in. A host that sends nothing within ``command_wait_s`` gets the
-sensor's power-on layout (a passive reader).
+:func:`gyronet.stream.pty_device.play_device`) the pty also answers the host's commands before it
+streams: the plan is then framed in the layout the host left the sensor in. A host that sends
+nothing within ``command_wait_s`` gets the sensor's power-on layout (a passive reader).
 """
 from __future__ import annotations
 
