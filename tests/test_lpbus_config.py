@@ -210,6 +210,18 @@ def test_a_stream_faster_than_its_timestamp_clock_says_which_setting():
         parser.feed(frames)
 
 
+def test_an_800_hz_clock_read_at_400_hz_names_the_setting():
+    # a legacy sensor at 800 Hz counts at 800 Hz (OpenZen): one tick a frame, read at 400 Hz ticks
+    frames = b"".join(legacy_frame(i, (0.0, 0.0, 0.0), (0.0, 0.0, 1.0), 25.0) for i in range(20))
+    parser = LpBusParser(LpBusLayout())
+    parser.probe = FirstFrames(parser.layout, 20, expected_hz=800.0)
+    with pytest.raises(LayoutError, match="the timestamp counts at 800 Hz; set lpbus.timestamp_hz=800"):
+        parser.feed(frames)
+    right = LpBusParser(LpBusLayout(timestamp_hz=800.0))
+    right.probe = FirstFrames(right.layout, 20, expected_hz=800.0)
+    assert len(right.feed(frames)) == 20
+
+
 def test_setup_refuses_a_bundle_trained_on_the_host_corrected_gyro():
     from gyronet.errors import BundleError
     from gyronet.stream.lpbus_setup import start_lpbus

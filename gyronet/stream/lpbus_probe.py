@@ -7,7 +7,9 @@ acc + temperature. Both put a gyro rate (a few deg/s, or rad/s) where the accele
 read about 1 g. A stream faster than the timestamp clock repeats its times. So the first frames
 are checked, where the layout makes it possible:
 
-- times: more than a quarter of the intervals not increasing means ``timestamp_hz`` is wrong;
+- times: more than a quarter of the intervals not increasing means ``timestamp_hz`` is wrong; so
+  does a rate (median interval) off the bundle's ``fs_hz`` by exactly the ratio of two LPMS
+  timestamp clocks (400, 500, 800 Hz: legacy above 400 Hz, or an IG1, read at the wrong one);
 - acceleration, when the layout has it: the median of |a| must lie within 0.7-1.5 g (1 g at rest;
   a moving sensor's median stays near it);
 - temperature: the median must lie within -60-150 degC.
@@ -28,6 +30,8 @@ from gyronet.stream.lpbus_layout import LpBusLayout
 ACC_RANGE_G = (0.7, 1.5)
 TEMP_RANGE_C = (-60.0, 150.0)
 MAX_NOT_INCREASING = 0.25
+CLOCKS_HZ = (400.0, 500.0, 800.0)  # the LPMS timestamp clocks (lpbus_legacy, lpbus_ig1)
+RATE_TOLERANCE = 0.05
 
 
 class LayoutError(GyronetError):
@@ -37,8 +41,10 @@ class LayoutError(GyronetError):
 class FirstFrames:
     """Collect the first ``n_frames`` decoded frames and refuse the layout if they do not fit it."""
 
-    def __init__(self, layout: LpBusLayout, n_frames: int = 20, source: str = "the stream"):
+    def __init__(self, layout: LpBusLayout, n_frames: int = 20, source: str = "the stream",
+                 expected_hz: float | None = None):
         self.layout, self.n_frames, self.source = layout, max(2, int(n_frames)), source
+        self.expected_hz = expected_hz  # the bundle's fs_hz, if any
         self.frames: list[tuple[float, dict[str, float]]] = []
         self.done = False
 
@@ -63,6 +69,12 @@ class FirstFrames:
                               f"than the {layout.timestamp_hz:g} Hz timestamp (a legacy sensor above 400 Hz "
                               "counts at 800 Hz, an IG1 at 500 Hz): set lpbus.timestamp_hz, or let gyronet ask "
                               "the sensor (lpbus.configure=true)")
+        clock, measured_hz = self._other_clock(times)
+        if clock is not None:
+            raise LayoutError(f"{where}: the stream runs at {measured_hz:.4g} Hz by its times, the bundle's "
+                              f"fs_hz ({self.expected_hz:g} Hz) times "
+                              f"{layout.timestamp_hz:g}/{clock:g}: the timestamp counts at {clock:g} Hz; set "
+                              f"lpbus.timestamp_hz={clock:g}, or lpbus.configure=true")
         if "acc_x_g" in layout.columns:
             norms = [math.sqrt(sum(v[f"acc_{a}_g"] ** 2 for a in "xyz")) for _, v in self.frames]
             median = _median(norms)
@@ -77,6 +89,22 @@ class FirstFrames:
                 raise LayoutError(f"{where}: the temperature reads {median:.4g} degC (median), outside "
                                   f"{TEMP_RANGE_C[0]:g}-{TEMP_RANGE_C[1]:g} degC: the frames carry other outputs, "
                                   "precision or units: set lpbus.fields/precision, or lpbus.configure=true")
+
+
+    def _other_clock(self, times: list[float]) -> tuple[float | None, float]:
+        """Another LPMS clock rate that makes the measured rate the bundle's (None if none), and that rate, Hz."""
+        steps = [b - a for a, b in zip(times, times[1:]) if b > a]
+        if self.expected_hz is None or self.layout.timestamp != "count" or not steps:
+            return None, math.nan
+        measured_hz = 1.0 / statistics.median(steps)
+        if abs(measured_hz - self.expected_hz) <= RATE_TOLERANCE * self.expected_hz:
+            return None, measured_hz
+        for clock in CLOCKS_HZ:
+            if clock != self.layout.timestamp_hz:
+                rescaled_hz = measured_hz * clock / self.layout.timestamp_hz
+                if abs(rescaled_hz - self.expected_hz) <= RATE_TOLERANCE * self.expected_hz:
+                    return clock, measured_hz
+        return None, measured_hz
 
 
 def _median(values: list[float]) -> float:
