@@ -215,7 +215,7 @@ def test_an_800_hz_clock_read_at_400_hz_names_the_setting():
     frames = b"".join(legacy_frame(i, (0.0, 0.0, 0.0), (0.0, 0.0, 1.0), 25.0) for i in range(20))
     parser = LpBusParser(LpBusLayout())
     parser.probe = FirstFrames(parser.layout, 20, expected_hz=800.0)
-    with pytest.raises(LayoutError, match="the timestamp counts at 800 Hz; set lpbus.timestamp_hz=800"):
+    with pytest.raises(LayoutError, match=r"the timestamp counts at 800 Hz \(set lpbus.timestamp_hz=800"):
         parser.feed(frames)
     right = LpBusParser(LpBusLayout(timestamp_hz=800.0))
     right.probe = FirstFrames(right.layout, 20, expected_hz=800.0)

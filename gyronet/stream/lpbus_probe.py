@@ -73,8 +73,9 @@ class FirstFrames:
         if clock is not None:
             raise LayoutError(f"{where}: the stream runs at {measured_hz:.4g} Hz by its times, the bundle's "
                               f"fs_hz ({self.expected_hz:g} Hz) times "
-                              f"{layout.timestamp_hz:g}/{clock:g}: the timestamp counts at {clock:g} Hz; set "
-                              f"lpbus.timestamp_hz={clock:g}, or lpbus.configure=true")
+                              f"{layout.timestamp_hz:g}/{clock:g}: the timestamp counts at {clock:g} Hz (set "
+                              f"lpbus.timestamp_hz={clock:g}, or lpbus.configure=true), unless the sensor streams "
+                              "at another rate than the bundle's (resample=true)")
         if "acc_x_g" in layout.columns:
             norms = [math.sqrt(sum(v[f"acc_{a}_g"] ** 2 for a in "xyz")) for _, v in self.frames]
             median = _median(norms)

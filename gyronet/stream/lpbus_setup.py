@@ -136,7 +136,8 @@ def start_lpbus(port, port_name: str, setup: LpBusSetup, meta: Mapping[str, Any]
                           "reconnect.wait_at_start=true or set lpbus.configure=false")
     if port is None or not setup.wants_configure(port_name):
         layout = setup.passive_layout()
-        probe = FirstFrames(layout, setup.check_frames, port_name, fs_hz) if setup.check_frames > 0 else None
+        expected_hz = None if resample else fs_hz  # with resample, another rate is no sign of a wrong clock
+        probe = FirstFrames(layout, setup.check_frames, port_name, expected_hz) if setup.check_frames > 0 else None
         log.info("%s: listening only (lpbus.configure=false): %s", port_name, layout.describe())
         return LpBusStart(layout, None, probe)
     rate = setup.rate_hz if setup.rate_hz is not None else fs_hz
