@@ -131,6 +131,11 @@ def test_an_acknowledged_setting_the_sensor_does_not_report_is_refused():
         configure_sensor(FakePort(StubbornSensor()), WANTED, 0.2)
 
 
+def test_outputs_the_generation_lacks_are_refused_by_name():
+    with pytest.raises(SensorError, match=r"LPMS-CU2: unknown LP-BUS field\(s\) \['gyro_aligned'\] for legacy"):
+        configure_sensor(FakePort(EmulatedLpms()), Wanted(fields=("gyro_aligned", "temperature")), 0.2)
+
+
 def test_a_silent_port_is_one_clear_error():
     with pytest.raises(SensorError, match=r"no answer to GOTO_COMMAND_MODE \(command 6\) within 0.05 s"):
         configure_sensor(FakePort(EmulatedLpms(), mute=True), WANTED, 0.05)

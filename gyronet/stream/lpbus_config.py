@@ -120,10 +120,11 @@ def _legacy(link: LpBusLink, wanted: Wanted) -> SensorInfo:
     register = link.ask_int(legacy.GET_CONFIG, "GET_CONFIG")
     changed: list[str] = []
     if wanted.fields is not None:
-        bits = LpBusLayout(fields=wanted.fields).config_register & legacy.OUTPUT_BITS
+        asked = _check(lambda: LpBusLayout(fields=wanted.fields), name)
+        bits = asked.config_register & legacy.OUTPUT_BITS
         if register & legacy.OUTPUT_BITS != bits:
             link.set_int(legacy.SET_TRANSMIT_DATA, "SET_TRANSMIT_DATA", bits)
-            changed.append(f"outputs {list(LpBusLayout(fields=wanted.fields).fields)}")
+            changed.append(f"outputs {list(asked.fields)}")
     rate = _rate_to_set(legacy.RATES_HZ, wanted, legacy.rate_hz(register), name)
     if rate is not None:
         link.set_int(legacy.SET_STREAM_FREQ, "SET_STREAM_FREQ", rate)
@@ -154,7 +155,7 @@ def _ig1(link: LpBusLink, wanted: Wanted, firmware: str) -> SensorInfo:
     changed: list[str] = []
     register = link.ask_int(ig1.GET_TRANSMIT_DATA, "GET_IMU_TRANSMIT_DATA")
     if wanted.fields is not None:
-        asked = LpBusLayout(fields=wanted.fields, generation="ig1", primary_gyro=primary)
+        asked = _check(lambda: LpBusLayout(fields=wanted.fields, generation="ig1", primary_gyro=primary), model)
         if register != asked.config_register:
             link.set_int(ig1.SET_TRANSMIT_DATA, "SET_IMU_TRANSMIT_DATA", asked.config_register)
             changed.append(f"outputs {list(asked.fields)}")
