@@ -138,7 +138,7 @@ def start_lpbus(port, port_name: str, setup: LpBusSetup, meta: Mapping[str, Any]
         layout = setup.passive_layout()
         expected_hz = None if resample else fs_hz  # with resample, another rate is no sign of a wrong clock
         probe = FirstFrames(layout, setup.check_frames, port_name, expected_hz) if setup.check_frames > 0 else None
-        log.info("%s: listening only (lpbus.configure=false): %s", port_name, layout.describe())
+        log.info("%s: listening only (lpbus.configure=%s): %s", port_name, setup.configure, layout.describe())
         return LpBusStart(layout, None, probe)
     rate = setup.rate_hz if setup.rate_hz is not None else fs_hz
     wanted = Wanted(setup.fields, rate, setup.precision, setup.gyro_autocalibration, setup.save,
