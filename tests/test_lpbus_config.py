@@ -290,3 +290,16 @@ def test_any_register_of_either_generation_decodes_what_was_sent(generation, bit
             step = math.degrees(step) if spec.angular and layout.radians and precision == 16 else step
             for column in spec.columns:
                 assert item.values[column] == pytest.approx(0.5, abs=step / 2 + 1e-9)
+
+
+@given(commands=st.lists(st.tuples(st.integers(0, 200), st.binary(max_size=40)), min_size=1, max_size=8),
+       garbage=st.lists(st.binary(max_size=12).filter(lambda b: 0x3A not in b), min_size=9, max_size=9),
+       cut=st.integers(0, 400))
+def test_replies_are_found_among_garbage_at_any_split(commands, garbage, cut):
+    from gyronet.stream.lpbus import lpbus_frame
+    from gyronet.stream.lpbus_link import FrameReader
+
+    stream = b"".join(g + lpbus_frame(1, c, d) for g, (c, d) in zip(garbage, commands)) + garbage[-1]
+    reader = FrameReader()
+    found = list(reader.feed(stream[:cut])) + list(reader.feed(stream[cut:]))
+    assert [(c, d) for _, c, d in found] == commands
