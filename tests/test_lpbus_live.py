@@ -172,3 +172,40 @@ def test_scripts_configure_an_emulated_ig1_and_refuse_a_silent_port_in_one_line(
                             cwd=root, capture_output=True, text=True, timeout=120)
     assert failed.returncode == 2 and len(failed.stderr.strip().splitlines()) == 1
     assert failed.stderr.startswith("error: loop://: no answer to GOTO_COMMAND_MODE (command 6)")
+
+
+def test_reference_built_frames_replayed_through_a_pty_decode_exactly(tmp_path):
+    """Frames packed with struct as OpenZen's parsers read them (test_lpbus_config.reference_frame), not by
+    gyronet's encoder, played through a pty and read by pyserial: every value as the reference computes it."""
+    import math
+    import struct
+
+    from gyronet.stream import LpBusLayout, LpBusParser, Sample, read_samples
+    from gyronet.stream.emulator import Event, StreamPlan
+    from gyronet.stream.reader import open_port
+    from test_lpbus_config import ig1_frame, legacy_frame
+
+    def f32(value):
+        return struct.unpack("<f", struct.pack("<f", value))[0]
+
+    cases = {"legacy": [legacy_frame(4 * i, (0.01 * i, -0.02, 0.03), (0.0, 0.001 * i, 1.0), 20.0 + i)
+                        for i in range(50)],
+             "ig1": [ig1_frame(5 * i, (0.0, 0.001 * i, 1.0), (0.5 * i, -2.0, 0.25), 20.0 + i) for i in range(50)]}
+    for generation, frames in cases.items():
+        link = tmp_path / f"{generation}-sensor"
+        plan = StreamPlan([Event(float(i), frame) for i, frame in enumerate(frames)], b"", {})
+        started(play_in_thread(plan, link), link)
+        port = open_port(str(link))
+        samples = [item for item in read_samples(port, LpBusParser(LpBusLayout(generation=generation)),
+                                                 url=str(link), give_up_s=0.3, backoff_s=0.05)
+                   if isinstance(item, Sample)]
+        assert len(samples) == 50
+        for i, sample in enumerate(samples):
+            if generation == "legacy":  # count * 0.0025 s; rad/s * 180/pi
+                assert sample.time_s == pytest.approx(4 * i * 0.0025, rel=1e-12)
+                assert sample.values["gyro_x_dps"] == pytest.approx(math.degrees(f32(0.01 * i)), rel=1e-12)
+                assert sample.values["acc_y_g"] == f32(0.001 * i)
+            else:  # count * 0.002 s; deg/s as sent, acc first
+                assert sample.time_s == pytest.approx(5 * i * 0.002, rel=1e-12)
+                assert sample.values["gyro_x_dps"] == f32(0.5 * i) and sample.values["acc_y_g"] == f32(0.001 * i)
+            assert sample.values["temp_c"] == f32(20.0 + i)
