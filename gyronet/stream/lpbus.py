@@ -195,6 +195,8 @@ class LpBusParser:
         time_s, values = self.layout.decode(data)
         if self.probe is not None:
             self.probe.see(time_s, values)  # raises LayoutError when the first frames do not fit the layout
+            if self.probe.done:
+                self.probe = None  # checked: no cost per frame from here on
         return self.check.check(time_s, values, frame)
 
     def _flush_garbage(self, out: list) -> None:
