@@ -25,6 +25,9 @@ MODEL_FILE, META_FILE, KALMAN_FILE = "model.pt", "meta.json", "kalman.json"
 TRAINED_FILE = "gyronet/trained.json"
 TRAINED_FIELDS = ("input_columns", "features", "feature_names", "fs_hz", "temp_range_c", "axes", "kalman")
 AXES = ["x", "y", "z"]
+# which gyro the training data held (optional; absent in older bundles, read as "raw"): the sensor's raw
+# rate (LP-BUS, record.py, the simulator) or the host-corrected one of an LPMS-Control log
+GYRO_SOURCES = ("raw", "host_corrected")
 _ABSENT = object()
 
 # kind -> {parameter: (required, check)}; parameters not listed are ignored
@@ -101,6 +104,9 @@ def validate_meta(meta: Any, source: str = META_FILE) -> None:
     needed = [c for c in dict.fromkeys([*required_columns(features), *GYRO_COLUMNS]) if c not in columns]
     if needed:
         raise _fail(source, f"'input_columns' lacks {', '.join(needed)}, which the features and output need")
+    gyro = meta.get("gyro_source", "raw")
+    if gyro not in GYRO_SOURCES:
+        raise _fail(source, f"'gyro_source' must be one of {list(GYRO_SOURCES)}, got {gyro!r}")
     if not isinstance(meta.get("kalman", False), bool):
         raise _fail(source, f"'kalman' must be true or false, got {meta['kalman']!r}")
     sums = meta.get("sha256", {})
@@ -145,6 +151,17 @@ def _check_version(version: Any, source: str) -> None:
     if ours is not None and theirs is not None and theirs > ours:
         raise _fail(source, f"written by gyronet {version}, newer than this gyronet {gyronet_version()}; "
                             "upgrade gyronet to use it")
+
+
+def gyro_source_of(recording_metas) -> str | None:
+    """The ``gyro_source`` a bundle records for its training recordings' metadata (None: none says).
+
+    Any host-corrected recording makes the bundle host-corrected: on the raw stream it would be wrong.
+    """
+    said = {m.get("gyro_source") for m in recording_metas} - {None}
+    if not said:
+        return None
+    return "host_corrected" if "host_corrected" in said else "raw"
 
 
 def trained_fields(meta: Mapping[str, Any]) -> dict[str, Any]:

@@ -46,6 +46,7 @@ def kalman_stage(kalman_cfg: Mapping[str, Any] | None, model: torch.nn.Module, d
 
 
 def _meta(model: torch.nn.Module, data: DriftData) -> dict[str, Any]:
+    from gyronet.bundle_schema import gyro_source_of
     from gyronet.data import GYRO_COLUMNS
     from gyronet.features import required_columns
 
@@ -53,6 +54,10 @@ def _meta(model: torch.nn.Module, data: DriftData) -> dict[str, Any]:
     meta = build_meta(data.features, data.feature_names, data.fs_hz, data.temp_range_c, inputs,
                       data.recording.checksum(), model_info(model))
     meta.update(getattr(data, "bundle_meta", dict)())  # several runs (gyronet.runs): each run, its checksum
+    runs = getattr(data, "runs", None) or []
+    source = gyro_source_of([r.recording.meta for r in runs] or [data.recording.meta])
+    if source is not None:  # issue 13: raw (LP-BUS) or host-corrected (an LPMS-Control log) gyro
+        meta["gyro_source"] = source
     return meta
 
 

@@ -5,20 +5,24 @@ from pathlib import Path
 from omegaconf import DictConfig, OmegaConf
 
 from gyronet.stream import FaultPlan, LpBusLayout
+from gyronet.stream.lpbus_device import EmulatedLpms
 from gyronet.stream.pty_sensor import emulate_file
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # scripts/_cli.py, also when this file is run by path
 from _cli import command  # noqa: E402
 
 
-@command("emulate", schemas={"lpbus": "gyronet.stream.LpBusLayout", "faults": "gyronet.stream.FaultPlan"},
-         required=("input",))
+@command("emulate", schemas={"lpbus": "gyronet.stream.LpBusLayout", "faults": "gyronet.stream.FaultPlan",
+                             "sensor": "gyronet.stream.lpbus_device.EmulatedLpms"}, required=("input",))
 def main(cfg: DictConfig) -> None:
     options = OmegaConf.to_container(cfg, resolve=True)
+    sensor = options.get("sensor") or {}
+    device = EmulatedLpms(**{**sensor, "firmware": tuple(sensor["firmware"]), "fields": tuple(sensor["fields"])}) \
+        if sensor.get("model") else None
     emulate_file(options["input"], options["protocol"], float(options["speed"]),
                  FaultPlan(**options["faults"]), LpBusLayout(**options["lpbus"]), options["csv_columns"],
                  options["link"], options["port_file"], options["log_file"], float(options["port_down_s"]),
-                 float(options["reader_timeout_s"]))
+                 float(options["reader_timeout_s"]), device, float(options.get("command_wait_s", 2.0)))
 
 
 if __name__ == "__main__":

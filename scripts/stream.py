@@ -4,22 +4,24 @@ from pathlib import Path
 
 from omegaconf import DictConfig, OmegaConf
 
-from gyronet.stream import LpBusLayout
 from gyronet.stream.live import run_stream, stop_on_signals
+from gyronet.stream.lpbus_setup import LpBusSetup
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # scripts/_cli.py, also when this file is run by path
 from _cli import command  # noqa: E402
 
 
-@command("stream", "deploy", schemas={"lpbus": "gyronet.stream.LpBusLayout"}, required=("model", "port", "output"))
+@command("stream", "deploy", schemas={"lpbus": "gyronet.stream.lpbus_setup.LpBusSetup"},
+         required=("model", "port", "output"))
 def main(cfg: DictConfig) -> None:
     options = OmegaConf.to_container(cfg, resolve=True)
     with stop_on_signals() as stop:  # SIGINT and SIGTERM alike, whatever the parent left them as
         run_stream(options["model"], options["port"], options["output"], options["protocol"], int(options["baud"]),
-                   LpBusLayout(**options["lpbus"]), options["max_samples"], options["duration_s"],
+                   None, options["max_samples"], options["duration_s"],
                    float(options["allan_every_s"]), options["tb_dir"], options["summary"],
                    float(options["read_timeout_s"]), options["reconnect"], options["clock"], stop=stop,
-                   startup=options.get("startup"), resample=bool(options.get("resample", False)))
+                   startup=options.get("startup"), resample=bool(options.get("resample", False)),
+                   lpbus=LpBusSetup(**options["lpbus"]))
 
 
 if __name__ == "__main__":

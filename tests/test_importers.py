@@ -122,8 +122,9 @@ def lpms_rows(n: int = 5, sensor: int = 1, gyro: float = 0.5, temp_c: float = 31
               pressure: float = 0.0, temp_step_c: float = 0.01) -> list[str]:
     rows = []
     for i in range(n):
-        values = [sensor, i / fs_hz, i, 0.01, -0.02, -1.0, gyro, -gyro, 2 * gyro, -5.5, -19.5, -50.3,
-                  -0.4, -0.02, 13.98, 0.99, 0.003, 0.0006, -0.12, 0.001, -0.001, 0.002, pressure, 0.0,
+        d = 0.001 * i  # enabled outputs move a little from row to row; disabled ones are constant
+        values = [sensor, i / fs_hz, i, 0.01 + d, -0.02, -1.0, gyro, -gyro, 2 * gyro, -5.5 + d, -19.5, -50.3,
+                  -0.4 + d, -0.02, 13.98, 0.99 - d, 0.003, 0.0006, -0.12, 0.001 + d, -0.001, 0.002, pressure, 0.0,
                   temp_c + temp_step_c * i, 0.0]
         rows.append(", ".join(f"{v:.6f}" if isinstance(v, float) else str(v) for v in values))
     return rows
@@ -444,3 +445,37 @@ def test_lpms_and_psim_logs_saved_as_utf16_or_with_extra_cells(tmp_path):
     with pytest.raises(RecordingError) as excinfo:
         import_recording(extra, "psim")
     assert "malformed row: the first data row has more cells than the header's 8" in one_line_error(excinfo)
+
+
+# --- issue 13: which gyro, lost samples from the timestamps, constant disabled outputs -----------
+
+def test_lpms_lost_samples_are_counted_from_the_timestamps_not_frame_number(tmp_path):
+    rows = lpms_rows(40)
+    kept = rows[:10] + rows[15:30] + rows[37:]  # two holes of 5 and 7 rows; FrameNumber renumbered 0..n
+    renumbered = []
+    for index, row in enumerate(kept):
+        cells = row.split(", ")
+        cells[2] = str(index)  # OpenMAT counts frames on the host: it never skips
+        renumbered.append(", ".join(cells))
+    rec = import_recording(write_lpms(tmp_path / "holes.csv", LPMS_LATER, renumbered), "lpms")
+    assert rec.meta["missing_frames"] == "12" and len(rec) == 28
+
+
+def test_lpms_says_which_gyro_and_warns_about_auto_calibration(tmp_path, caplog):
+    rec = import_recording(write_lpms(tmp_path / "log.csv", LPMS_LATER, lpms_rows(gyro=0.0001)), "lpms")
+    assert rec.meta["gyro_source"] == "host_corrected"
+    assert "gyro auto-calibration may have been on and the gyro's median is within 0.002" in caplog.text
+    caplog.clear()
+    import_recording(write_lpms(tmp_path / "moving.csv", LPMS_LATER, lpms_rows(gyro=0.5)), "lpms")
+    assert "host-corrected gyro" in caplog.text and "within 0.002" not in caplog.text
+
+
+def test_lpms_drops_a_constant_unit_quaternion_but_keeps_moving_outputs(tmp_path):
+    rows = []
+    for row in lpms_rows(6):
+        cells = row.split(", ")
+        cells[15:19] = ["1.000000", "0.000000", "0.000000", "0.000000"]  # quaternion output off: w = 1
+        rows.append(", ".join(cells))
+    rec = import_recording(write_lpms(tmp_path / "noquat.csv", LPMS_LATER, rows), "lpms")
+    assert not any(c.startswith("quat_") for c in rec.columns)
+    assert "quat_w" in rec.meta["disabled_outputs"] and "mag_x_ut" in rec.columns and "euler_x_deg" in rec.columns

@@ -11,6 +11,7 @@ import pytest
 import serial
 
 import gyronet.stream.reader as reader_module
+from gyronet.stream.lpbus_setup import LpBusSetup
 from gyronet.stream import (CsvLineParser, Fault, FaultCounter, FaultPlan, LpBusLayout, LpBusParser, Sample,
                             SampleCheck,
                             encode_csv_header, encode_csv_line, encode_lpbus, lpbus_frame, lrc, make_parser,
@@ -356,7 +357,8 @@ def test_configs_build_the_library_objects():
     faults = FaultPlan(**OmegaConf.to_container(emulate.faults))
     assert faults.drop_port_at_s == (1.0, 2.0)
     assert LpBusLayout(**OmegaConf.to_container(emulate.lpbus)) == LpBusLayout(sensor_id=1)
-    assert LpBusLayout(**OmegaConf.to_container(stream.lpbus)).fields == ("gyro", "temperature")
+    setup = LpBusSetup(**OmegaConf.to_container(stream.lpbus))
+    assert setup.passive_layout().fields == ("gyro", "temperature") and setup.configure == "auto"
     assert stream.model == "m"
 
 

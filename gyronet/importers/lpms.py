@@ -18,10 +18,23 @@ Header variants seen in LP-Research's own code (every one is a comma-and-space s
 OpenZen documents ``g`` in deg/s (``docs/data.rst``, ZenImuData). An LPMS-IG1 can be set to output
 rad/s (LP-Research knowledge base, "LPMS ASCII Format Output": "Raw GyroI (dps or rad/s)"), so a
 ``GyroX (rad/s)`` header is converted to deg/s, and a header without a unit needs ``gyro_unit``.
-Outputs that were not enabled are logged as 0 in every row; such columns are dropped (listed in
-``disabled_outputs``), and a temperature or gyro that is 0 throughout is an error. A file with several
-sensors (``SensorId``) needs ``sensor_id``. Frame counters and row indices are not kept; gaps in
-``FrameNumber`` are counted as ``missing_frames``.
+Outputs that were not enabled are logged as constants in every row (0, or the unit quaternion
+``QuatW`` = 1 with ``QuatX..Z`` = 0); an output group whose every column is constant is dropped
+(listed in ``disabled_outputs``), and a temperature or gyro that is 0 throughout is an error. A
+file with several sensors (``SensorId``) needs ``sensor_id``. Frame counters and row indices are
+not kept. Lost samples are counted from the timestamps (``missing_frames``: intervals longer than
+1.5 median intervals, each worth ``round(interval / median) - 1`` samples), not from
+``FrameNumber``, which OpenMAT counts on the host (``LpmsSensor.cpp``: ``frameCount``) and which
+never skips when Bluetooth frames are lost.
+
+Which gyro: the logged ``Gyro`` is ``currentData.g``, the host-corrected rate (OpenMAT
+``LpSensor/LpmsSensor.cpp``: ``g = gyrMisalignMatrix * gRaw + gyrAlignmentBias``; OpenZen does the
+same in ``ImuComponent.cpp``), not the raw gyro that LP-BUS streams; the recording says so
+(``gyro_source=host_corrected``), a bundle trained on it records it, and ``stream.py`` refuses it
+on the raw stream. Such logs do not record whether the sensor's gyro auto-calibration (legacy
+register bit 30) was on: if it was, the sensor re-zeroed its gyro whenever it was still and part
+of the thermal drift is gone from the log; a warning says so, louder when the gyro's median is
+within ``AUTOCAL_SUSPECT_DPS`` of zero on every axis.
 """
 from __future__ import annotations
 
@@ -53,6 +66,8 @@ _RATE_DPS = {"deg/s": 1.0, "dps": 1.0, "degs": 1.0, "deg/sec": 1.0, "rad/s": 180
 _ACC_G = {"g": 1.0, "m/s^2": 1.0 / STANDARD_GRAVITY_M_S2, "m/s2": 1.0 / STANDARD_GRAVITY_M_S2}
 _TIME_S = {"s": 1.0, "": 1.0, "ms": 1e-3, "us": 1e-6}
 _PRESSURE_KPA = {"kpa": 1.0, "hpa": 0.1, "pa": 1e-3}
+AUTOCAL_SUSPECT_DPS = 0.002  # a median gyro this close to 0 on every axis looks re-zeroed by the sensor
+GAP_FACTOR = 1.5  # an interval longer than this many median intervals has lost samples
 
 
 def import_lpms(path: str | os.PathLike, sensor_id: int | None = None, gyro_unit: str = "auto",
@@ -92,25 +107,67 @@ def import_lpms(path: str | os.PathLike, sensor_id: int | None = None, gyro_unit
 
     columns: dict[str, np.ndarray] = {}
     meta: dict[str, object] = {"sensor": sensor or ("LP-Research LPMS" + (f" (SensorId {chosen:g})"
-                                                                            if chosen is not None else ""))}
+                                                                            if chosen is not None else "")),
+                               "gyro_source": "host_corrected",
+                               "gyro_autocalibration": "unknown (LPMS logs do not record it)"}
     for name, (role, target, convert) in zip(names, plan):
-        values = raw[name][rows]
-        if role == "frame":
-            meta["missing_frames"] = _missing_frames(values)
-        elif target is not None:
-            columns[target] = convert(values)
+        if target is not None:
+            columns[target] = convert(raw[name][rows])
     zero = {c for c, v in columns.items() if _all_zero(v)}
     for what, group in (("TimeStamp", ["time_s"]), ("Temperature", ["temp_c"]), ("Gyro", list(GYRO_COLUMNS))):
         if all(c in zero for c in group):
             raise RecordingError(f"{path}: {what} is 0 in every row: that output was not enabled when "
                                  "logging (enable it in LPMS-Control and record again)")
-    disabled = [c for c in columns if c in zero and c not in REQUIRED_COLUMNS]
+    disabled = _disabled_outputs(columns)
     for name in disabled:
         del columns[name]
     if disabled:
         meta["disabled_outputs"] = ";".join(disabled)
-        log.info("%s: outputs 0 in every row (not enabled), not kept: %s", path.name, ", ".join(disabled))
+        log.info("%s: outputs constant in every row (not enabled), not kept: %s", path.name, ", ".join(disabled))
+    meta["missing_frames"] = _missing_frames(columns["time_s"])
+    _warn_gyro_source(path, columns)
     return finish(path, columns, meta, "lpms", row_label="line", first_row=first_line)
+
+
+def _disabled_outputs(columns: dict[str, np.ndarray]) -> list[str]:
+    """Columns of output groups (``quat_*``, ``mag_*``, ``pressure_kpa``...) constant in every row.
+
+    A group is judged whole: a unit quaternion (w = 1, x = y = z = 0) is an output that was off,
+    while one constant axis of a moving group is data. Single columns count as off only when 0.
+    """
+    groups: dict[str, list[str]] = {}
+    for name in columns:
+        if name not in REQUIRED_COLUMNS:
+            groups.setdefault(_group(name), []).append(name)
+    out = []
+    for names in groups.values():
+        if len(names) == 1:
+            off = _all_zero(columns[names[0]])
+        else:
+            off = all(_constant(columns[n]) for n in names)
+        out.extend(names if off else [])
+    return out
+
+
+def _group(name: str) -> str:
+    """``quat_w`` -> ``quat``; ``mag_x_ut`` -> ``mag``; ``pressure_kpa`` -> ``pressure_kpa``."""
+    parts = name.split("_")
+    return parts[0] if len(parts) >= 2 and parts[1] in ("x", "y", "z", "w") else name
+
+
+def _constant(values: np.ndarray) -> bool:
+    finite = values[np.isfinite(values)]
+    return finite.size > 1 and bool(np.all(finite == finite[0]))
+
+
+def _warn_gyro_source(path: Path, columns: dict[str, np.ndarray]) -> None:
+    medians = [float(np.nanmedian(columns[c])) for c in GYRO_COLUMNS]
+    suspect = all(abs(m) < AUTOCAL_SUSPECT_DPS for m in medians)
+    log.warning("%s: an LPMS log holds the host-corrected gyro (OpenMAT: alignment matrix and bias applied), not the "
+                "raw LP-BUS gyro: a bundle trained on it is refused by stream.py (record with scripts/record.py "
+                "instead); the sensor's gyro auto-calibration may have been on%s", path.name,
+                f" and the gyro's median is within {AUTOCAL_SUSPECT_DPS} deg/s of 0 on every axis "
+                f"({', '.join(f'{m:.2g}' for m in medians)}): it probably was, removing drift" if suspect else "")
 
 
 def _plan(path: Path, name: str, gyro_unit: str):
@@ -195,9 +252,15 @@ def _ids(values: list[float]) -> str:
     return ", ".join(f"{v:g}" for v in values)
 
 
-def _missing_frames(frame: np.ndarray) -> int:
-    step = np.diff(frame[np.isfinite(frame)])
-    return int(np.sum(np.where(step > 1, step - 1, 0)))
+def _missing_frames(time_s: np.ndarray) -> int:
+    """Samples lost, from the timestamps: each interval over GAP_FACTOR medians lost round(interval / median) - 1."""
+    step = np.diff(time_s[np.isfinite(time_s)])
+    step = step[step > 0]
+    if step.size == 0:
+        return 0
+    nominal = float(np.median(step))
+    gaps = step[step > GAP_FACTOR * nominal]
+    return int(np.sum(np.round(gaps / nominal) - 1))
 
 
 def _all_zero(values: np.ndarray) -> bool:

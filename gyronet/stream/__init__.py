@@ -2,7 +2,9 @@
 
 The framing parsers are pure (bytes in, ``Sample`` or ``Fault`` out, any chunking); only
 :mod:`gyronet.stream.reader` imports ``serial``. The live compensation loop that joins a stream to a
-compensator bundle is :mod:`gyronet.stream.live`.
+compensator bundle is :mod:`gyronet.stream.live`. Talking to an LPMS sensor before it streams
+(identity, registers, outputs, rate, gyro auto-calibration; both LP-BUS generations) is
+:mod:`gyronet.stream.lpbus_setup`, used by ``stream.py`` and ``record.py`` (:mod:`.record`).
 """
 from typing import Iterable
 

@@ -27,6 +27,7 @@ import numpy as np
 from gyronet.compensator import Compensator
 from gyronet.stream import FaultCounter, LpBusLayout, Sample, SampleCheck, make_parser, read_samples
 from gyronet.stream.live_allan import LiveAllan
+from gyronet.stream.lpbus_setup import LpBusSetup, LpBusStart, start_lpbus
 from gyronet.stream.output import LiveWriter, OutputError, output_names, write_summary
 from gyronet.stream.reader import open_port_or_fail
 
@@ -42,7 +43,8 @@ def run_stream(bundle_dir: str | Path, port: str, output: str | Path, protocol: 
                reconnect: Mapping[str, float | bool | None] | None = None,
                clock: Mapping[str, float | None] | None = None,
                stop: Callable[[], bool] | None = None,
-               startup: Mapping[str, Any] | None = None, resample: bool = False) -> dict:
+               startup: Mapping[str, Any] | None = None, resample: bool = False,
+               lpbus: LpBusSetup | None = None) -> dict:
     """``stream.py``: compensate a live stream until told to stop; return the summary.
 
     Parameters
@@ -78,6 +80,9 @@ def run_stream(bundle_dir: str | Path, port: str, output: str | Path, protocol: 
     resample
         As in ``compensate.py``: the stream's rate, measured over its first ``RATE_PROBE_SAMPLES``
         samples (held until then), must be within 5 % of the bundle's ``fs_hz`` unless true.
+    lpbus
+        LP-BUS set-up (:class:`~gyronet.stream.lpbus_setup.LpBusSetup`): configure the sensor, or
+        listen and check the first frames; it replaces ``layout``. None: listen with ``layout``.
 
     Raises
     ------
@@ -95,10 +100,13 @@ def run_stream(bundle_dir: str | Path, port: str, output: str | Path, protocol: 
     compensator.reset()
     check = SampleCheck(**dict(clock or {}))
     parser = make_parser(protocol, layout, required=compensator.input_columns, check=check)
-    if protocol == "lpbus":
+    if protocol == "lpbus" and lpbus is None:
         compensator.check_columns(dict.fromkeys(parser.columns), source=f"LP-BUS fields {list(parser.layout.fields)}")
     opened = None if wait_at_start else open_port_or_fail(
         port, baud, read_timeout_s, hint="; pass reconnect.wait_at_start=true to wait for it")
+    sensor = None
+    if protocol == "lpbus" and lpbus is not None:  # issue 13: set the sensor up before the sample loop
+        sensor, parser = _start_lpbus(opened, port, lpbus, compensator, resample, check)
     try:
         out = LiveWriter(output, bundle_dir)
     except OutputError:
@@ -108,7 +116,7 @@ def run_stream(bundle_dir: str | Path, port: str, output: str | Path, protocol: 
     writer = _tb_writer(tb_dir) if tb_dir is not None and allan_every_s > 0 else None
     allan = LiveAllan(writer, allan_every_s, float(compensator.meta["fs_hz"])) if allan_every_s > 0 else None
     counter = FaultCounter()
-    state = {"n_out_of_range": 0, "clock_restarts": 0}
+    state = {"n_out_of_range": 0, "clock_restarts": 0, "sensor": sensor.as_dict() if sensor is not None else None}
     started = time.monotonic()
     stopped, failure = "port_gone", None
     external_stop = stop or (lambda: False)
@@ -254,6 +262,19 @@ def interrupt_on_sigterm() -> None:
     signal.signal(signal.SIGTERM, _raise)
 
 
+def _start_lpbus(opened, port: str, lpbus: LpBusSetup, compensator: Compensator, resample: bool,
+                 check: SampleCheck) -> tuple[LpBusStart, Any]:
+    """Configure the sensor (or plan the passive check) and make its parser; the port is closed on a refusal."""
+    try:
+        start = start_lpbus(opened, port, lpbus, compensator.meta, resample)
+        compensator.check_columns(dict.fromkeys(start.layout.columns), source=f"{port}: {start.layout.describe()}")
+    except Exception:
+        if opened is not None:
+            opened.close()
+        raise
+    return start, start.parser(check)
+
+
 def _tb_writer(tb_dir: str | Path):
     from gyronet.tb import make_writer
 
@@ -277,4 +298,5 @@ def _summary(counter: FaultCounter, compensator: Compensator, out: LiveWriter, a
             "clock_restarts": int(state["clock_restarts"]),
             "temp_range_c": list(compensator.temp_range_c), "elapsed_s": round(elapsed_s, 3),
             "output": str(out.path), "allan": allan.last if allan is not None else {},
-            "allan_bins": allan.bins if allan is not None else {}}
+            "allan_bins": allan.bins if allan is not None else {},
+            **({"sensor": state["sensor"]} if state.get("sensor") else {})}

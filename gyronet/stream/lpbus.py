@@ -82,10 +82,15 @@ class LpBusParser:
         self.check = check or SampleCheck()
         self._buffer = bytearray()
         self._garbage = bytearray()
+        self.probe = None  # a first-frames layout check (gyronet.stream.lpbus_probe.FirstFrames), or None
 
     @property
     def columns(self) -> list[str]:
         return self.layout.columns
+
+    def prime(self, data: bytes) -> None:
+        """Bytes read before the sample loop (what followed the set-up's last answer): parsed with the next feed."""
+        self._buffer += data
 
     def feed(self, data: bytes) -> list[Sample | Fault]:
         """Parse what ``data`` completes; keep the rest for the next call."""
@@ -188,6 +193,10 @@ class LpBusParser:
             return Fault("bad_length", frame, f"{header.length} data bytes, fields {list(self.layout.fields)} "
                                               f"need {self.layout.data_length}")
         time_s, values = self.layout.decode(data)
+        if self.probe is not None:
+            self.probe.see(time_s, values)  # raises LayoutError when the first frames do not fit the layout
+            if self.probe.done:
+                self.probe = None  # checked: no cost per frame from here on
         return self.check.check(time_s, values, frame)
 
     def _flush_garbage(self, out: list) -> None:

@@ -12,6 +12,11 @@ Two details keep the emulation lossless:
   reader's ``tcsetattr`` changes it, then a moment more, before sending.
 - Before it drops the port, it waits until the reader has read every byte (``FIONREAD`` on the
   slave stays 0 for a moment).
+
+With an emulated sensor (:class:`~gyronet.stream.lpbus_device.EmulatedLpms`,
+:func:`gyronet.stream.pty_device.play_device`) the pty also answers the host's commands before it
+streams: the plan is then framed in the layout the host left the sensor in. A host that sends
+nothing within ``command_wait_s`` gets the sensor's power-on layout (a passive reader).
 """
 from __future__ import annotations
 
@@ -25,11 +30,14 @@ import threading
 import time
 import tty
 from pathlib import Path
-from typing import Callable, Sequence
+from typing import Callable, Mapping, Sequence
+
+import numpy as np
 
 from gyronet.data import load_recording
 from gyronet.errors import GyronetError
 from gyronet.stream.emulator import FaultPlan, StreamPlan, plan_stream
+from gyronet.stream.lpbus_device import EmulatedLpms
 from gyronet.stream.lpbus_layout import LpBusLayout
 
 log = logging.getLogger(__name__)
@@ -127,16 +135,20 @@ class PtySensor:
 
 def play(plan: StreamPlan, sensor: PtySensor, speed: float = 1.0, reader_timeout_s: float = 30.0,
          port_down_s: float = 0.5, drain_timeout_s: float = 10.0,
-         clock: Callable[[], float] = time.monotonic, sleep: Callable[[float], None] = time.sleep) -> int:
+         clock: Callable[[], float] = time.monotonic, sleep: Callable[[float], None] = time.sleep,
+         opened: bool = False) -> int:
     """Send a plan into ``sensor``: in real time divided by ``speed`` (0: as fast as possible).
+
+    ``opened``: the pty is open and its reader there already (``play_device``).
 
     Returns
     -------
     int
         Number of events sent (drops included).
     """
-    sensor.open()
-    sensor.wait_for_reader(reader_timeout_s)
+    if not opened:
+        sensor.open()
+        sensor.wait_for_reader(reader_timeout_s)
     sensor.write(plan.preamble)
     if not plan.events:
         return 0
@@ -155,19 +167,33 @@ def play(plan: StreamPlan, sensor: PtySensor, speed: float = 1.0, reader_timeout
 
 
 
-def play_in_thread(plan: StreamPlan, link: str | Path, **play_options) -> threading.Thread:
+def play_in_thread(plan: StreamPlan | None, link: str | Path, device: EmulatedLpms | None = None,
+                   columns: Mapping[str, np.ndarray] | None = None, faults: FaultPlan | None = None,
+                   **play_options) -> threading.Thread:
     """Play ``plan`` into a new pseudo-terminal at ``link`` from a daemon thread (tests, in-process
-    benchmarks); the port is closed and its link removed when the plan ends."""
+    benchmarks); the port is closed and its link removed when the plan ends.
+
+    With ``device``, the pty answers the host's commands first and then plays ``columns`` (with
+    ``faults``) framed in the layout the host left (the thread's ``plan`` attribute holds it).
+    """
+    from gyronet.stream.pty_device import fill_columns, play_device
+
     sensor = PtySensor(link)
+    options = {"speed": 0, "reader_timeout_s": 20, "port_down_s": 0.2, **play_options}
 
     def emulate() -> None:
         try:
-            play(plan, sensor, **{"speed": 0, "reader_timeout_s": 20, "port_down_s": 0.2, **play_options})
+            if device is None:
+                play(plan, sensor, **options)
+            else:
+                thread.plan = play_device(device, lambda layout: plan_stream(
+                    fill_columns(columns, layout), "lpbus", faults, layout), sensor, **options)
         finally:
             sensor.close()
             sensor.remove_link()
 
     thread = threading.Thread(target=emulate, daemon=True)
+    thread.plan = plan
     thread.start()
     return thread
 
@@ -187,32 +213,52 @@ def emulate_file(input_path: str | os.PathLike, protocol: str = "lpbus", speed: 
                  faults: FaultPlan | None = None, layout: LpBusLayout | None = None,
                  csv_columns: Sequence[str] | None = None, link: str | None = None, port_file: str | None = None,
                  log_file: str | os.PathLike | None = None, port_down_s: float = 0.5,
-                 reader_timeout_s: float = 30.0) -> dict:
+                 reader_timeout_s: float = 30.0, device: EmulatedLpms | None = None,
+                 command_wait_s: float = 1.0) -> dict:
     """``emulate_sensor.py``: play a recording into a pty as a sensor would; return the log.
 
     The log (see :func:`gyronet.stream.emulator.plan_stream`) is written to ``log_file`` before
-    the first byte is sent, since the plan is fixed by the seed.
+    the first sample is sent, since the plan is fixed by the seed. With ``device`` (LP-BUS only),
+    the pty first answers the host's commands (``layout`` is then unused: the frames follow the
+    layout the host set), and the log also holds the commands received and the final layout.
     """
+    from gyronet.stream.pty_device import fill_columns, play_device
+
     recording = load_recording(input_path)
-    try:
-        plan = plan_stream(recording.columns, protocol, faults, layout, csv_columns)
-    except (ValueError, KeyError) as err:
-        raise GyronetError(f"{input_path}: {err}") from None
-    plan.log.update(input=str(input_path), speed=speed)
-    if log_file is not None:
-        _write_atomic(Path(log_file), json.dumps(plan.log) + "\n")
-    log.info("%d samples to send as %s, %d intact; faults planned: %s", len(recording), protocol,
-             len(plan.log["good_indices"]), plan.log["expected_faults"] or "none")
+    if device is not None and protocol != "lpbus":
+        raise GyronetError("an emulated sensor (sensor.model) speaks LP-BUS: set protocol=lpbus or sensor.model=null")
+
+    def make_plan(frame_layout: LpBusLayout | None) -> StreamPlan:
+        columns = recording.columns if device is None else fill_columns(recording.columns, frame_layout)
+        try:
+            plan = plan_stream(columns, protocol, faults, frame_layout, csv_columns)
+        except (ValueError, KeyError) as err:
+            raise GyronetError(f"{input_path}: {err}") from None
+        plan.log.update(input=str(input_path), speed=speed)
+        if device is not None:
+            plan.log.update(sensor=device.model, layout=frame_layout.describe(), commands=list(device.commands))
+        if log_file is not None:
+            _write_atomic(Path(log_file), json.dumps(plan.log) + "\n")
+        log.info("%d samples to send as %s, %d intact; faults planned: %s", len(recording), protocol,
+                 len(plan.log["good_indices"]), plan.log["expected_faults"] or "none")
+        return plan
+
     sensor = PtySensor(link, port_file)
+    plan = None
     try:
-        play(plan, sensor, speed, reader_timeout_s=reader_timeout_s, port_down_s=port_down_s)
+        if device is None:
+            plan = make_plan(layout)
+            play(plan, sensor, speed, reader_timeout_s=reader_timeout_s, port_down_s=port_down_s)
+        else:
+            plan = play_device(device, make_plan, sensor, speed, command_wait_s=command_wait_s,
+                               reader_timeout_s=reader_timeout_s, port_down_s=port_down_s)
         log.info("all sent")
     except KeyboardInterrupt:
         log.info("stopped")
     finally:
         sensor.close()
         sensor.remove_link()
-    return plan.log
+    return plan.log if plan is not None else {}
 
 
 def _write_atomic(path: Path, text: str) -> None:

@@ -1,0 +1,77 @@
+"""An emulated LPMS behind a pseudo-terminal: answer the host's set-up, then stream in the layout it left.
+
+:class:`~gyronet.stream.lpbus_device.EmulatedLpms` decides the answers; this module moves the
+bytes (``select`` on the pty master) and builds the plan once the host is done.
+"""
+from __future__ import annotations
+
+import logging
+import os
+import select
+import time
+from typing import TYPE_CHECKING, Callable, Mapping
+
+import numpy as np
+
+from gyronet.stream.emulator import StreamPlan
+from gyronet.stream.lpbus import encode_lpbus
+from gyronet.stream.lpbus_device import EmulatedLpms
+from gyronet.stream.lpbus_layout import LpBusLayout
+
+if TYPE_CHECKING:
+    from gyronet.stream.pty_sensor import PtySensor
+
+log = logging.getLogger(__name__)
+
+
+def serve_commands(device: EmulatedLpms, sensor: PtySensor, command_wait_s: float = 1.0, idle_s: float = 2.0,
+                   preroll: bytes = b"") -> bool:
+    """Answer the host's commands until it puts the sensor back to streaming; False if it sent none.
+
+    ``preroll``: sensor-data frames sent first, as a sensor streams from power-on (the host must
+    skip them while it waits for its answers).
+    """
+    sensor.write(preroll)
+    deadline = time.monotonic() + command_wait_s
+    while True:
+        left_s = deadline - time.monotonic()
+        if left_s <= 0:
+            return bool(device.commands)
+        ready, _, _ = select.select([sensor.master_fd], [], [], left_s)
+        if not ready:
+            continue
+        for reply in device.feed(os.read(sensor.master_fd, 4096)):
+            sensor.write(reply)
+        if device.commands:
+            if device.streaming:
+                return True
+            deadline = time.monotonic() + idle_s
+
+
+def play_device(device: EmulatedLpms, make_plan: Callable[[LpBusLayout], StreamPlan], sensor: PtySensor,
+                speed: float = 1.0, command_wait_s: float = 1.0, preroll_frames: int = 0,
+                preroll_row: Mapping[str, float] | None = None, **play_options) -> StreamPlan:
+    """Open the pty, answer the host's set-up, then play ``make_plan(layout the host left)``; return the plan."""
+    from gyronet.stream.pty_sensor import play
+
+    reader_timeout_s = float(play_options.pop("reader_timeout_s", 30.0))
+    sensor.open()
+    sensor.wait_for_reader(reader_timeout_s)
+    preroll = b"".join(encode_lpbus(preroll_row, device.layout(), device.sensor_id)
+                       for _ in range(preroll_frames)) if preroll_row is not None else b""
+    talked = serve_commands(device, sensor, command_wait_s, preroll=preroll)
+    log.info("emulated %s %s; streaming %s", device.model, "configured by the host" if talked else "not configured",
+             device.layout().describe())
+    plan = make_plan(device.layout())
+    play(plan, sensor, speed, reader_timeout_s=reader_timeout_s, opened=True, **play_options)
+    return plan
+
+
+def fill_columns(columns: Mapping[str, np.ndarray], layout: LpBusLayout) -> dict[str, np.ndarray]:
+    """``columns`` with what ``layout`` sends but the recording lacks: 1 g on z, a unit quaternion, else 0."""
+    n = len(columns["time_s"])
+    out = dict(columns)
+    for name in layout.columns:
+        if name not in out:
+            out[name] = np.full(n, 1.0 if name in ("acc_z_g", "acccal_z_g", "quat_w") else 0.0)
+    return out
