@@ -48,17 +48,21 @@ class RBFNet(nn.Module):
     clamp
         Evaluate the Gaussians, the polynomial and the linear temperature term at inputs clamped
         to the training box.
+    select_capacity
+        Let training choose each axis's capacity on held-out data (``gyronet.capacity``): it
+        only zeroes rows of the output layers, so the function and its parameters stay the same.
     """
 
     def __init__(self, n_inputs: int, n_outputs: int = 3, n_centers: int = 32, width_init: float = 1.0,
                  rbf_inputs: Optional[List[int]] = None, linear: bool = False, temp_degree: int = 0,
-                 temp_index: int = 0, clamp: bool = False):
+                 temp_index: int = 0, clamp: bool = False, select_capacity: bool = False):
         super().__init__()
         self.n_inputs, self.n_outputs, self.n_centers = n_inputs, n_outputs, n_centers
         self.width_init = float(width_init)
         self.min_width = _MIN_WIDTH
         self.rbf_inputs: List[int] = list(range(n_inputs)) if rbf_inputs is None else [int(i) for i in rbf_inputs]
         self.use_linear, self.temp_degree, self.temp_index, self.clamp = linear, int(temp_degree), temp_index, clamp
+        self.select_capacity = bool(select_capacity)
         n_rbf = len(self.rbf_inputs)
         dtype = torch.float64
         self.register_buffer("x_mean", torch.zeros(n_inputs, dtype=dtype))
@@ -138,25 +142,34 @@ class RBFNet(nn.Module):
         self.refit_head(x, y, ridge)
 
     @torch.no_grad()
-    def refit_head(self, x: Tensor, y: Tensor, ridge: float = 1e-6) -> None:
-        """Solve the output layer by ridge least squares for the current centres and widths."""
+    def refit_head(self, x: Tensor, y: Tensor, ridge: float = 1e-6, level: int = 3,
+                   axes: Optional[List[int]] = None) -> None:
+        """Solve the output layer by ridge least squares for the current centres and widths.
+
+        ``level`` is the capacity of the fitted rows (``gyronet.capacity.LEVELS``): 0 a constant,
+        1 + the linear terms, 2 + the temperature powers, 3 + the Gaussians (everything). Only the
+        rows of ``axes`` (all when None) are written; the parts above ``level`` are zero there.
+        """
         basis = self.basis(x)
-        n_phi = self.n_centers
-        keep = [True] * n_phi + [self.use_linear] * self.n_inputs + [self.temp_degree >= 2] * (basis.shape[1] - n_phi - self.n_inputs)
+        n_phi, n_lin = self.n_centers, self.n_inputs
+        n_pow = basis.shape[1] - n_phi - n_lin
+        keep = ([level >= 3] * n_phi + [self.use_linear and level >= 1] * n_lin
+                + [self.temp_degree >= 2 and level >= 2] * n_pow)
         cols = torch.tensor(keep)
         design = torch.cat([basis[:, cols], torch.ones(len(x), 1, dtype=x.dtype)], dim=1)
         target = (y - self.y_mean) / self.y_std
         gram = design.T @ design + ridge * len(x) * torch.eye(design.shape[1], dtype=x.dtype)
         coef = torch.linalg.solve(gram, design.T @ target)
-        weights, bias = coef[:-1], coef[-1]
-        self.head.weight.copy_(weights[:n_phi].T)
-        self.head.bias.copy_(bias)
-        offset = n_phi
-        if self.use_linear:
-            self.linear.weight.copy_(weights[offset:offset + self.n_inputs].T)
-            offset += self.n_inputs
-        if self.temp_degree >= 2:
-            self.poly.weight.copy_(weights[offset:].T)
+        full = torch.zeros(n_phi + n_lin + n_pow, self.n_outputs, dtype=x.dtype)
+        full[cols] = coef[:-1]
+        rows = list(range(self.n_outputs)) if axes is None else [int(a) for a in axes]
+        for a in rows:
+            self.head.weight[a] = full[:n_phi, a]
+            self.head.bias[a] = coef[-1, a]
+            if self.use_linear:
+                self.linear.weight[a] = full[n_phi:n_phi + n_lin, a]
+            if self.temp_degree >= 2:
+                self.poly.weight[a] = full[n_phi + n_lin:, a]
 
 
 def _kmeans_pp(points: Tensor, k: int, generator: torch.Generator, iterations: int = 10) -> Tensor:

@@ -261,6 +261,13 @@ def fit_by_run(model: nn.Module, data: RunsData, optim: Callable | None = None, 
         out[key] = float(np.mean([f[key] for f in folds]))
     if steps is not None:
         out["train/steps"] = steps
+    if getattr(model, "select_capacity", False):  # each axis's level, from every fold's held-out run
+        from gyronet import capacity
+
+        errors = capacity.from_metrics(folds)
+        levels = capacity.choose(errors)
+        capacity.apply(model, data, levels)
+        out.update(capacity.as_metrics(errors, levels))
     log.info("leave-one-run-out over %d runs: mean held-out 60 s RMSE %.4g deg/s; final fit on every run%s",
              data.n_runs, out["val/rmse_dps"], f" for {steps} steps" if steps else "")
     return out, folds

@@ -150,10 +150,26 @@ def fit(model: torch.nn.Module, data: DriftData, optim: Callable | None = None, 
         raise GyronetError(f"training gave no finite validation error in {step + 1} steps (last "
                            f"val/rmse_dps {metrics['val/rmse_dps']}); check the validation recording")
     model.load_state_dict(best_state)
+    chosen = _select_capacity(model, data) if getattr(model, "select_capacity", False) else {}
     final = {"train/loss": best["train/loss"], "train/steps": step + 1, "train/best_step": best["train/best_step"],
-             **validation_metrics(model, data)}
+             **validation_metrics(model, data), **chosen}
     _check_finite(final, "the trained model")
     return final
+
+
+def _select_capacity(model: torch.nn.Module, data: DriftData) -> dict[str, float]:
+    """Every capacity level's held-out error per axis; on one recording, also keep each axis's best level.
+
+    A fold of several runs only reports the errors: ``gyronet.runs.fit_by_run`` chooses from all folds.
+    """
+    from gyronet import capacity
+
+    errors = capacity.level_errors(model, data)
+    levels = None
+    if getattr(data, "held_out", None) is None:
+        levels = capacity.choose(errors)
+        capacity.apply(model, data, levels)
+    return capacity.as_metrics(errors, levels)
 
 
 def _check_finite(metrics: Mapping[str, float], what: str) -> None:
