@@ -143,12 +143,14 @@ class RBFNet(nn.Module):
 
     @torch.no_grad()
     def refit_head(self, x: Tensor, y: Tensor, ridge: float = 1e-6, level: int = 3,
-                   axes: Optional[List[int]] = None) -> None:
+                   axes: Optional[List[int]] = None, ridge_terms: Optional[float] = None) -> None:
         """Solve the output layer by ridge least squares for the current centres and widths.
 
         ``level`` is the capacity of the fitted rows (``gyronet.capacity.LEVELS``): 0 a constant,
         1 + the linear terms, 2 + the temperature powers, 3 + the Gaussians (everything). Only the
         rows of ``axes`` (all when None) are written; the parts above ``level`` are zero there.
+        ``ridge`` (times the number of rows) penalises the Gaussian weights, ``ridge_terms`` the
+        linear and polynomial ones (the same as ``ridge`` when None); the constant is never penalised.
         """
         basis = self.basis(x)
         n_phi, n_lin = self.n_centers, self.n_inputs
@@ -158,7 +160,11 @@ class RBFNet(nn.Module):
         cols = torch.tensor(keep)
         design = torch.cat([basis[:, cols], torch.ones(len(x), 1, dtype=x.dtype)], dim=1)
         target = (y - self.y_mean) / self.y_std
-        gram = design.T @ design + ridge * len(x) * torch.eye(design.shape[1], dtype=x.dtype)
+        n_phi_kept = n_phi if level >= 3 else 0
+        other = ridge if ridge_terms is None else ridge_terms
+        penalty = torch.tensor([ridge] * n_phi_kept + [other] * (design.shape[1] - 1 - n_phi_kept) + [0.0],
+                               dtype=x.dtype)
+        gram = design.T @ design + len(x) * torch.diag(penalty)
         coef = torch.linalg.solve(gram, design.T @ target)
         full = torch.zeros(n_phi + n_lin + n_pow, self.n_outputs, dtype=x.dtype)
         full[cols] = coef[:-1]
