@@ -59,7 +59,7 @@ def validation_metrics(model: torch.nn.Module, data: DriftData, full_rate: bool 
 def fit(model: torch.nn.Module, data: DriftData, optim: Callable | None = None, max_epochs: int = 3000,
         patience: int = 400, eval_every: int = 25, seed: int = 0, weight_decay: float = 0.0,
         writer: Any = None, progress: bool = True, threads: int | None = 1,
-        stop_at_step: int | None = None, refit_all: bool = True, warm_start: bool = False) -> dict[str, float]:
+        stop_at_step: int | None = None, warm_start: bool = False) -> dict[str, float]:
     """Fit ``model`` to ``data.train`` and return the final metrics (``val/rmse_dps`` first of all).
 
     Parameters
@@ -86,18 +86,11 @@ def fit(model: torch.nn.Module, data: DriftData, optim: Callable | None = None, 
     stop_at_step
         Train exactly this many steps and keep the last state, without validation (the final fit
         on every run of a campaign, ``gyronet.runs.fit_by_run``).
-    refit_all
-        One recording split into time blocks: once validation has confirmed the fit (and chosen
-        each axis's capacity), continue from it on every block, validation blocks included, for
-        another ``max_epochs`` steps, so that no stretch of temperature is left out of the bundle
-        (a bias knee inside a held-out span is otherwise never seen; README "Why the default model").
-        The metrics stay those of the held-out blocks, before the refit.
     warm_start
         Start from the model's current state (its box widened to ``data``) instead of initialising it.
     """
     if threads:
         torch.set_num_threads(threads)
-    untrained = copy.deepcopy(model) if refit_all and stop_at_step is None else None
     torch.manual_seed(seed)
     x = torch.as_tensor(data.train.x, dtype=torch.float64)
     y = torch.as_tensor(data.train.y, dtype=torch.float64)
@@ -165,10 +158,10 @@ def fit(model: torch.nn.Module, data: DriftData, optim: Callable | None = None, 
     final = {"train/loss": best["train/loss"], "train/steps": step + 1, "train/best_step": best["train/best_step"],
              **validation_metrics(model, data), **chosen}
     _check_finite(final, "the trained model")
-    everything = _every_block(data) if untrained is not None else None
+    everything = _every_block(data) if getattr(model, "refit_all", False) else None
     if everything is not None:
         fit(model, everything, optim, max_epochs, patience, eval_every, seed, weight_decay, None, progress,
-            threads, stop_at_step=max_epochs, refit_all=False, warm_start=True)
+            threads, stop_at_step=max_epochs, warm_start=True)
         if chosen:
             from gyronet import capacity
 

@@ -83,8 +83,9 @@ def test_one_recording_is_refitted_on_every_block(tmp_path):
     assert knee.sum() > 100  # the knee is inside the held-out span
     error_dps = {}
     for refit_all in (False, True):
-        model = RBFNet(3, 3, 12, rbf_inputs=[0], linear=True, temp_degree=3, clamp=True, select_capacity=True)
-        metrics = fit(model, data, max_epochs=1500, progress=False, refit_all=refit_all)
+        model = RBFNet(3, 3, 12, rbf_inputs=[0], linear=True, temp_degree=3, clamp=True, select_capacity=True,
+                       refit_all=refit_all)
+        metrics = fit(model, data, max_epochs=1500, progress=False)
         assert [metrics[f"model/level_{a}"] for a in "xyz"] == [3, 3, 3]  # one run: full capacity where needed
         with torch.no_grad():
             predicted = model(torch.tensor(x[knee])).numpy()[:, 0]
