@@ -53,10 +53,10 @@ class RBFNet(nn.Module):
         only zeroes rows of the output layers, so the function and its parameters stay the same.
     refit_all
         One recording split into time blocks: once validation has confirmed the fit (and chosen
-        each axis's capacity), training continues from it on every block, validation blocks
-        included, for another ``max_epochs`` steps (``gyronet.train.fit``), so that no stretch of
-        temperature is left out of the bundle: a bias knee inside a held-out span is otherwise
-        never seen. The reported validation figures are those from before.
+        each axis's capacity), the bundle's training continues from it on every block, validation
+        blocks included, for another ``max_epochs`` steps (``gyronet.train.fit(for_bundle=True)``),
+        so that no stretch of temperature is left out of the bundle: a bias knee inside a held-out
+        span is otherwise never seen. The reported validation figures are those from before.
     """
 
     def __init__(self, n_inputs: int, n_outputs: int = 3, n_centers: int = 32, width_init: float = 1.0,

@@ -59,7 +59,7 @@ def validation_metrics(model: torch.nn.Module, data: DriftData, full_rate: bool 
 def fit(model: torch.nn.Module, data: DriftData, optim: Callable | None = None, max_epochs: int = 3000,
         patience: int = 400, eval_every: int = 25, seed: int = 0, weight_decay: float = 0.0,
         writer: Any = None, progress: bool = True, threads: int | None = 1,
-        stop_at_step: int | None = None, warm_start: bool = False) -> dict[str, float]:
+        stop_at_step: int | None = None, warm_start: bool = False, for_bundle: bool = False) -> dict[str, float]:
     """Fit ``model`` to ``data.train`` and return the final metrics (``val/rmse_dps`` first of all).
 
     Parameters
@@ -88,6 +88,10 @@ def fit(model: torch.nn.Module, data: DriftData, optim: Callable | None = None, 
         on every run of a campaign, ``gyronet.runs.fit_by_run``).
     warm_start
         Start from the model's current state (its box widened to ``data``) instead of initialising it.
+    for_bundle
+        This fit makes the bundle: nothing is scored on ``data.val`` after it, so a model that asks
+        for it (``RBFNet.refit_all``) continues on every block once validation has confirmed the
+        fit. Off for fits that are themselves validated afterwards (the diagnosis's folds).
     """
     if threads:
         torch.set_num_threads(threads)
@@ -158,7 +162,7 @@ def fit(model: torch.nn.Module, data: DriftData, optim: Callable | None = None, 
     final = {"train/loss": best["train/loss"], "train/steps": step + 1, "train/best_step": best["train/best_step"],
              **validation_metrics(model, data), **chosen}
     _check_finite(final, "the trained model")
-    everything = _every_block(data) if getattr(model, "refit_all", False) else None
+    everything = _every_block(data) if for_bundle and getattr(model, "refit_all", False) else None
     if everything is not None:
         fit(model, everything, optim, max_epochs, patience, eval_every, seed, weight_decay, None, progress,
             threads, stop_at_step=max_epochs, warm_start=True)

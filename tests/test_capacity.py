@@ -85,7 +85,7 @@ def test_one_recording_is_refitted_on_every_block(tmp_path):
     for refit_all in (False, True):
         model = RBFNet(3, 3, 12, rbf_inputs=[0], linear=True, temp_degree=3, clamp=True, select_capacity=True,
                        refit_all=refit_all)
-        metrics = fit(model, data, max_epochs=1500, progress=False)
+        metrics = fit(model, data, max_epochs=1500, progress=False, for_bundle=True)
         assert [metrics[f"model/level_{a}"] for a in "xyz"] == [3, 3, 3]  # one run: full capacity where needed
         with torch.no_grad():
             predicted = model(torch.tensor(x[knee])).numpy()[:, 0]
