@@ -8,6 +8,11 @@ Two ways to use it:
   Gaussians on the inputs a thermal history fully covers (temperature), all evaluated inside the
   trained box. A Gaussian fades to zero outside the data, so a plain RBF trained on a cooling run
   has no idea what heating does; the linear rate terms carry that over.
+
+The default also lets training choose each axis's capacity (``select_capacity``,
+``gyronet.capacity``): an axis kept at a lower level has zero Gaussian (and polynomial, and
+linear) weights in its row of the output layers. That adds no parameter and no form: the bundle's
+``model.pt`` is the same function of the same features, so an export of its state needs nothing new.
 """
 from __future__ import annotations
 

@@ -6,7 +6,8 @@ filter state leaks across a run's edge) and its drift targets; 10 s blocks are f
 run. With two or more runs the held-out data are whole runs, leave-one-run-out (``fit_by_run``):
 the only honest answer to "does it transfer to another thermal history". Optionally one constant
 per run and axis (``RunOffsets``) is fitted beside the model, as a nuisance parameter, so the
-temperature model learns only what the runs share.
+temperature model learns only what the runs share. A model with ``select_capacity`` gets each
+axis's capacity from every fold's held-out run (``gyronet.capacity``): what repeats from run to run.
 """
 from __future__ import annotations
 
