@@ -64,10 +64,17 @@ def touched_blocks(recording: Recording, block_s: float = BLOCK_S) -> np.ndarray
 
 
 def score(recording: Recording, rate_dps: np.ndarray, score_from_s: float, floor: np.ndarray,
-          touched: np.ndarray) -> np.ndarray:
-    """RMS of the 60 s block means of ``rate_dps`` after ``score_from_s``, untouched blocks only, / floor."""
+          touched: np.ndarray, box_c: tuple[float, float] | None = None) -> np.ndarray:
+    """RMS of the 60 s block means of ``rate_dps`` after ``score_from_s``, untouched blocks only, / floor.
+
+    With ``box_c`` only the samples inside those temperatures count, with their own mean removed:
+    what transfers inside a trained box, whatever the run's constant (a perfect offset).
+    """
     t = recording.time_s
     keep = (t >= t[0] + score_from_s) & ~touched[time_blocks(t, BLOCK_S)]
+    if box_c is not None:
+        keep &= (recording.temp_c >= box_c[0]) & (recording.temp_c <= box_c[1])
+        rate_dps = rate_dps - rate_dps[keep].mean(0)
     means = block_means(rate_dps[keep], t[keep], BLOCK_S)
     return np.sqrt(np.mean(means**2, axis=0)) / floor
 
@@ -96,6 +103,8 @@ def held_out_table(paths: Sequence[str], models: Mapping[str, Callable[[int], to
     dict
         ``floor_dps`` and ``touched_blocks`` per run, and ``rows``: one per model and variant, with
         ``ratio`` per held-out run (x, y, z) and the share of its samples outside the trained range.
+        The variant "own constant, in box" scores only the held-out samples inside the training
+        runs' temperatures, with the run's own mean removed (``score`` with ``box_c``).
     """
     train_cfg = {"progress": False, **dict(train_cfg or {})}
     score_from_s = max(score_from_s, startup_s)
@@ -107,6 +116,8 @@ def held_out_table(paths: Sequence[str], models: Mapping[str, Callable[[int], to
     for k, held in enumerate(names):
         recording = recordings[held]
         others = [p for j, p in enumerate(paths) if j != k]
+        box_c = (min(recordings[n].temp_c.min() for n in names if n != held),
+                 max(recordings[n].temp_c.max() for n in names if n != held))
         for model_name, make_model in models.items():
             variants = [False] + ([True] if run_offsets and len(others) >= 2 and make_model is not None else [])
             for with_offsets in variants:
@@ -116,6 +127,7 @@ def held_out_table(paths: Sequence[str], models: Mapping[str, Callable[[int], to
                 else:
                     log.info("%s: training on %s", label, ", ".join(n for n in names if n != held))
                     compensator = _train(make_model, others, with_offsets, train_cfg, seed)
+                rates = {}
                 for still_s in (0.0, startup_s):
                     if compensator is None:
                         rate = recording.gyro_dps
@@ -127,10 +139,13 @@ def held_out_table(paths: Sequence[str], models: Mapping[str, Callable[[int], to
                         compensator.reset()
                         out = compensator.process(recording.columns)
                         rate, oor = out.rate_dps, out.out_of_range
-                    offset = f"startup {still_s:g} s" if still_s else "none"
+                    rates[f"startup {still_s:g} s" if still_s else "none"] = rate
+                rates["own constant, in box"] = rates["none"]
+                for offset, rate in rates.items():
                     row = rows.setdefault(f"{label} | {offset}", {"model": label, "offset": offset, "ratio": {},
                                                                   "out_of_range_fraction": {}})
-                    row["ratio"][held] = score(recording, rate, score_from_s, floors[held], touched[held]).tolist()
+                    row["ratio"][held] = score(recording, rate, score_from_s, floors[held], touched[held],
+                                               box_c if offset.endswith("in box") else None).tolist()
                     row["out_of_range_fraction"][held] = float(np.mean(oor))
                     log.info("held out %s, %s, %s: %s", held, label, row["offset"],
                              np.round(row["ratio"][held], 2).tolist())

@@ -8,6 +8,11 @@ Two ways to use it:
   Gaussians on the inputs a thermal history fully covers (temperature), all evaluated inside the
   trained box. A Gaussian fades to zero outside the data, so a plain RBF trained on a cooling run
   has no idea what heating does; the linear rate terms carry that over.
+
+The default also lets training choose each axis's capacity (``select_capacity``,
+``gyronet.capacity``): an axis kept at a lower level has zero Gaussian (and polynomial, and
+linear) weights in its row of the output layers. That adds no parameter and no form: the bundle's
+``model.pt`` is the same function of the same features, so an export of its state needs nothing new.
 """
 from __future__ import annotations
 
@@ -48,17 +53,28 @@ class RBFNet(nn.Module):
     clamp
         Evaluate the Gaussians, the polynomial and the linear temperature term at inputs clamped
         to the training box.
+    select_capacity
+        Let training choose each axis's capacity on held-out data (``gyronet.capacity``): it
+        only zeroes rows of the output layers, so the function and its parameters stay the same.
+    refit_all
+        One recording split into time blocks: once validation has confirmed the fit (and chosen
+        each axis's capacity), the bundle's training continues from it on every block, validation
+        blocks included, for another ``max_epochs`` steps (``gyronet.train.fit(for_bundle=True)``),
+        so that no stretch of temperature is left out of the bundle: a bias knee inside a held-out
+        span is otherwise never seen. The reported validation figures are those from before.
     """
 
     def __init__(self, n_inputs: int, n_outputs: int = 3, n_centers: int = 32, width_init: float = 1.0,
                  rbf_inputs: Optional[List[int]] = None, linear: bool = False, temp_degree: int = 0,
-                 temp_index: int = 0, clamp: bool = False):
+                 temp_index: int = 0, clamp: bool = False, select_capacity: bool = False,
+                 refit_all: bool = False):
         super().__init__()
         self.n_inputs, self.n_outputs, self.n_centers = n_inputs, n_outputs, n_centers
         self.width_init = float(width_init)
         self.min_width = _MIN_WIDTH
         self.rbf_inputs: List[int] = list(range(n_inputs)) if rbf_inputs is None else [int(i) for i in rbf_inputs]
         self.use_linear, self.temp_degree, self.temp_index, self.clamp = linear, int(temp_degree), temp_index, clamp
+        self.select_capacity, self.refit_all = bool(select_capacity), bool(refit_all)
         n_rbf = len(self.rbf_inputs)
         dtype = torch.float64
         self.register_buffer("x_mean", torch.zeros(n_inputs, dtype=dtype))
@@ -138,25 +154,34 @@ class RBFNet(nn.Module):
         self.refit_head(x, y, ridge)
 
     @torch.no_grad()
-    def refit_head(self, x: Tensor, y: Tensor, ridge: float = 1e-6) -> None:
-        """Solve the output layer by ridge least squares for the current centres and widths."""
+    def refit_head(self, x: Tensor, y: Tensor, ridge: float = 1e-6, level: int = 3,
+                   axes: Optional[List[int]] = None) -> None:
+        """Solve the output layer by ridge least squares for the current centres and widths.
+
+        ``level`` is the capacity of the fitted rows (``gyronet.capacity.LEVELS``): 0 a constant,
+        1 + the linear terms, 2 + the temperature powers, 3 + the Gaussians (everything). Only the
+        rows of ``axes`` (all when None) are written; the parts above ``level`` are zero there.
+        """
         basis = self.basis(x)
-        n_phi = self.n_centers
-        keep = [True] * n_phi + [self.use_linear] * self.n_inputs + [self.temp_degree >= 2] * (basis.shape[1] - n_phi - self.n_inputs)
+        n_phi, n_lin = self.n_centers, self.n_inputs
+        n_pow = basis.shape[1] - n_phi - n_lin
+        keep = ([level >= 3] * n_phi + [self.use_linear and level >= 1] * n_lin
+                + [self.temp_degree >= 2 and level >= 2] * n_pow)
         cols = torch.tensor(keep)
         design = torch.cat([basis[:, cols], torch.ones(len(x), 1, dtype=x.dtype)], dim=1)
         target = (y - self.y_mean) / self.y_std
         gram = design.T @ design + ridge * len(x) * torch.eye(design.shape[1], dtype=x.dtype)
         coef = torch.linalg.solve(gram, design.T @ target)
-        weights, bias = coef[:-1], coef[-1]
-        self.head.weight.copy_(weights[:n_phi].T)
-        self.head.bias.copy_(bias)
-        offset = n_phi
-        if self.use_linear:
-            self.linear.weight.copy_(weights[offset:offset + self.n_inputs].T)
-            offset += self.n_inputs
-        if self.temp_degree >= 2:
-            self.poly.weight.copy_(weights[offset:].T)
+        full = torch.zeros(n_phi + n_lin + n_pow, self.n_outputs, dtype=x.dtype)
+        full[cols] = coef[:-1]
+        rows = list(range(self.n_outputs)) if axes is None else [int(a) for a in axes]
+        for a in rows:
+            self.head.weight[a] = full[:n_phi, a]
+            self.head.bias[a] = coef[-1, a]
+            if self.use_linear:
+                self.linear.weight[a] = full[n_phi:n_phi + n_lin, a]
+            if self.temp_degree >= 2:
+                self.poly.weight[a] = full[n_phi + n_lin:, a]
 
 
 def _kmeans_pp(points: Tensor, k: int, generator: torch.Generator, iterations: int = 10) -> Tensor:

@@ -6,7 +6,8 @@ filter state leaks across a run's edge) and its drift targets; 10 s blocks are f
 run. With two or more runs the held-out data are whole runs, leave-one-run-out (``fit_by_run``):
 the only honest answer to "does it transfer to another thermal history". Optionally one constant
 per run and axis (``RunOffsets``) is fitted beside the model, as a nuisance parameter, so the
-temperature model learns only what the runs share.
+temperature model learns only what the runs share. A model with ``select_capacity`` gets each
+axis's capacity from every fold's held-out run (``gyronet.capacity``): what repeats from run to run.
 """
 from __future__ import annotations
 
@@ -261,6 +262,13 @@ def fit_by_run(model: nn.Module, data: RunsData, optim: Callable | None = None, 
         out[key] = float(np.mean([f[key] for f in folds]))
     if steps is not None:
         out["train/steps"] = steps
+    if getattr(model, "select_capacity", False):  # each axis's level, from every fold's held-out run
+        from gyronet import capacity
+
+        errors = capacity.from_metrics(folds)
+        levels = capacity.choose(errors)
+        capacity.apply(model, data, levels)
+        out.update(capacity.as_metrics(errors, levels))
     log.info("leave-one-run-out over %d runs: mean held-out 60 s RMSE %.4g deg/s; final fit on every run%s",
              data.n_runs, out["val/rmse_dps"], f" for {steps} steps" if steps else "")
     return out, folds

@@ -15,7 +15,7 @@ import torch
 from tqdm.auto import tqdm
 
 from gyronet.data import AXES
-from gyronet.dataset import DriftData, block_rmse
+from gyronet.dataset import Blocks, DriftData, block_rmse
 from gyronet.errors import GyronetError
 
 log = logging.getLogger(__name__)
@@ -59,7 +59,7 @@ def validation_metrics(model: torch.nn.Module, data: DriftData, full_rate: bool 
 def fit(model: torch.nn.Module, data: DriftData, optim: Callable | None = None, max_epochs: int = 3000,
         patience: int = 400, eval_every: int = 25, seed: int = 0, weight_decay: float = 0.0,
         writer: Any = None, progress: bool = True, threads: int | None = 1,
-        stop_at_step: int | None = None) -> dict[str, float]:
+        stop_at_step: int | None = None, warm_start: bool = False, for_bundle: bool = False) -> dict[str, float]:
     """Fit ``model`` to ``data.train`` and return the final metrics (``val/rmse_dps`` first of all).
 
     Parameters
@@ -86,6 +86,12 @@ def fit(model: torch.nn.Module, data: DriftData, optim: Callable | None = None, 
     stop_at_step
         Train exactly this many steps and keep the last state, without validation (the final fit
         on every run of a campaign, ``gyronet.runs.fit_by_run``).
+    warm_start
+        Start from the model's current state (its box widened to ``data``) instead of initialising it.
+    for_bundle
+        This fit makes the bundle: nothing is scored on ``data.val`` after it, so a model that asks
+        for it (``RBFNet.refit_all``) continues on every block once validation has confirmed the
+        fit. Off for fits that are themselves validated afterwards (the diagnosis's folds).
     """
     if threads:
         torch.set_num_threads(threads)
@@ -99,7 +105,9 @@ def fit(model: torch.nn.Module, data: DriftData, optim: Callable | None = None, 
         metrics = {"train/loss": float(torch.mean((pred - y) ** 2)), **validation_metrics(model, data)}
         _check_finite(metrics, "the closed-form fit")
         return metrics
-    if offsets is None:
+    if warm_start:
+        _widen_box(model, x)
+    elif offsets is None:
         model.init_from_data(x, y, torch.Generator().manual_seed(seed))
     else:
         offsets.init_from_data(model, x, y, seed)
@@ -150,10 +158,54 @@ def fit(model: torch.nn.Module, data: DriftData, optim: Callable | None = None, 
         raise GyronetError(f"training gave no finite validation error in {step + 1} steps (last "
                            f"val/rmse_dps {metrics['val/rmse_dps']}); check the validation recording")
     model.load_state_dict(best_state)
+    chosen = _select_capacity(model, data) if getattr(model, "select_capacity", False) else {}
     final = {"train/loss": best["train/loss"], "train/steps": step + 1, "train/best_step": best["train/best_step"],
-             **validation_metrics(model, data)}
+             **validation_metrics(model, data), **chosen}
     _check_finite(final, "the trained model")
+    everything = _every_block(data) if for_bundle and getattr(model, "refit_all", False) else None
+    if everything is not None:
+        fit(model, everything, optim, max_epochs, patience, eval_every, seed, weight_decay, None, progress,
+            threads, stop_at_step=max_epochs, warm_start=True)
+        if chosen:
+            from gyronet import capacity
+
+            capacity.apply(model, everything, [int(chosen[f"model/level_{a}"]) for a in AXES])
+        log.info("continued on every block (%d) for %d steps", len(everything.train), max_epochs)
     return final
+
+
+def _widen_box(model: torch.nn.Module, x: torch.Tensor) -> None:
+    """Widen an RBFNet's trained box to hold ``x`` (a warm start on more data)."""
+    if hasattr(model, "z_low"):
+        with torch.no_grad():
+            z = (x - model.x_mean) / model.x_std
+            model.z_low.copy_(torch.minimum(model.z_low, z.min(0).values))
+            model.z_high.copy_(torch.maximum(model.z_high, z.max(0).values))
+
+
+def _every_block(data: DriftData) -> DriftData | None:
+    """One recording's data with every block to train on (None: validation is another recording, or runs)."""
+    if not isinstance(data, DriftData) or data.val_path:
+        return None
+    everything = copy.copy(data)
+    everything.train = Blocks(*(np.concatenate([getattr(data.train, k), getattr(data.val, k)])
+                                for k in ("x", "y", "time_s")))
+    return everything
+
+
+def _select_capacity(model: torch.nn.Module, data: DriftData) -> dict[str, float]:
+    """Every capacity level's held-out error per axis; on one recording, also keep each axis's best level.
+
+    A fold of several runs only reports the errors: ``gyronet.runs.fit_by_run`` chooses from all folds.
+    """
+    from gyronet import capacity
+
+    errors = capacity.level_errors(model, data)
+    levels = None
+    if getattr(data, "held_out", None) is None:
+        levels = capacity.choose(errors)
+        capacity.apply(model, data, levels)
+    return capacity.as_metrics(errors, levels)
 
 
 def _check_finite(metrics: Mapping[str, float], what: str) -> None:

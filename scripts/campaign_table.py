@@ -21,7 +21,9 @@ MODEL_CONF = Path(__file__).resolve().parents[1] / "conf" / "model"
 def main(cfg: DictConfig) -> None:
     models = {}
     for name in cfg.models:
-        spec = None if name == "raw" else OmegaConf.load(MODEL_CONF / f"{name}.yaml")
+        variant = dict(cfg.variants.get(name) or {"model": name})
+        spec = None if name == "raw" else OmegaConf.merge(OmegaConf.load(MODEL_CONF / f"{variant.pop('model')}.yaml"),
+                                                         variant)
         models[name] = None if spec is None else (lambda n_inputs, spec=spec: instantiate(spec, n_inputs=n_inputs))
     table = held_out_table(list(cfg.runs), models, float(cfg.startup_s), float(cfg.score_from_s), bool(cfg.run_offsets),
                            OmegaConf.to_container(cfg.train), int(cfg.seed))

@@ -185,3 +185,35 @@ def test_the_held_out_run_can_be_scored_as_deployed_with_a_startup_offset(paper_
     residual[time_s >= time_s[0] + 600] += 0.05
     adjusted = fold.val_adjust(time_s, residual)
     np.testing.assert_allclose(adjusted[time_s >= time_s[0] + 600], 0.05)
+
+
+CATS = ROOT.parent / "shared" / "data" / "real" / "cats-tag"
+CATS_RUNS = [CATS / "cats_run_z_down.csv.gz", CATS / "cats_run_y_down.csv.gz"]
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not all(p.is_file() for p in CATS_RUNS),
+                    reason=f"the real cats-tag runs are not at {CATS} (../shared is not in the repository)")
+def test_real_runs_choose_less_than_full_capacity_and_beat_the_cubic_inside_the_box():
+    """Two real runs of one tag: what the Gaussians learn from one run does not carry over to the other.
+
+    The figures are the folds' own (each run held out, trained on the other, inside its box,
+    its constant removed): the evidence the selection acts on, against the PX4 cubic's.
+    """
+    from gyronet import capacity
+
+    data = training_data(paths=[str(p) for p in CATS_RUNS], run_offsets=True)
+    model = RBFNet(3, 3, 12, rbf_inputs=[0], linear=True, temp_degree=3, clamp=True, select_capacity=True)
+    metrics, folds = fit_by_run(model, data, progress=False)
+    levels = [int(metrics[f"model/level_{a}"]) for a in "xyz"]
+    assert all(level < 3 for level in levels), levels
+    chosen = capacity.from_metrics(folds)[levels, [0, 1, 2]]
+    cubic = []
+    for run in data.runs:
+        fold = data.holding_out(run.index)
+        poly = TempPolynomial(3)
+        fit(poly, fold, progress=False)
+        cubic.append(capacity.held_out_error(poly, fold))
+    cubic = np.mean(cubic, axis=0)
+    assert np.all(chosen <= 1.05 * cubic), (chosen, cubic)
+    assert chosen.mean() <= 0.85 * cubic.mean(), (chosen, cubic)
