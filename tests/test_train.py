@@ -143,7 +143,7 @@ def test_default_model_removes_drift_on_a_different_thermal_history(bundle, cycl
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("launcher", ["basic", "joblib"])
+@pytest.mark.parametrize("launcher", ["joblib"])  # the basic launcher's path: tests/test_ga_sweeper.py
 def test_ga_sweep_of_the_real_training_gives_a_best_bundle_that_transfers(tmp_path, paper_csv, cycle_csv, launcher):
     sweep = tmp_path / "sweep"
     cmd = [sys.executable, "scripts/train.py", "-m", "hydra/sweeper=ga", f"hydra/launcher={launcher}",
