@@ -71,8 +71,9 @@ def read_chunks(port: serial.SerialBase | None, parser: Parser, *, url: str | No
                 sleep: Callable[[float], None] = time.sleep) -> Iterator[list[Sample | Fault]]:
     """Yield, read by read, the samples and faults that the bytes arriving on ``port`` make, in order.
 
-    Each read takes what is waiting (at least one byte, or nothing after ``timeout_s``), and the
-    list it yields holds every item those bytes complete (none: nothing is yielded). So a single
+    Each read takes what is waiting (at least one byte, or nothing after ``timeout_s``; then, without
+    waiting, whatever else has arrived, up to ``chunk_bytes``), and the list it yields holds every
+    item those bytes complete (none: nothing is yielded). So a single
     frame is yielded as soon as its last byte arrives, and a flood comes in chunks of every
     complete frame already read, which a consumer can process in one go. When the port fails
     (``SerialException`` or ``OSError``), a chunk of ``Fault("port_lost")`` and what flushing the
@@ -114,6 +115,9 @@ def read_chunks(port: serial.SerialBase | None, parser: Parser, *, url: str | No
                     return
             try:
                 data = port.read(min(max(1, port.in_waiting), chunk_bytes))
+                # and whatever else already waits (a pty hands over 4 KiB a read), never waiting for more
+                while data and len(data) < chunk_bytes and port.in_waiting:
+                    data += port.read(min(port.in_waiting, chunk_bytes - len(data)))
             except PORT_ERRORS as err:
                 log.warning("port %s lost: %s", url, err)
                 yield [Fault("port_lost", detail=str(err)[:80]), *parser.flush()]

@@ -47,8 +47,8 @@ def _pinned(cpu: int):
 
 
 def _run_pair(ctx: Context, name: str, recording: Path, bundle: Path, protocol: str, speed: float,
-              n: int) -> dict[str, Any]:
-    """Emulator and stream under the probe; returns their timing arrays."""
+              n: int, per_sample: bool = False) -> dict[str, Any]:
+    """Emulator and stream under the probe (``per_sample``: one sample a chunk); returns their timing arrays."""
     run_dir = ctx.path(f"stream_{name}")
     shutil.rmtree(run_dir, ignore_errors=True)
     run_dir.mkdir(parents=True)
@@ -64,10 +64,11 @@ def _run_pair(ctx: Context, name: str, recording: Path, bundle: Path, protocol: 
                   "reader_timeout_s=120", *ticks]),
                 ("stream", STREAM_CPU, "stream.py",
                  [f"model={bundle}", f"port={link}", f"protocol={protocol}", f"output={run_dir / 'live.csv'}",
-                  f"max_samples={n}", "reconnect.give_up_s=10", *ticks])):
+                  f"max_samples={n}", "reconnect.give_up_s=10", "resample=true", *ticks])):
             with open(run_dir / f"{role}.log", "w") as log:
                 processes.append(subprocess.Popen(
-                    [*python, role.replace("emulator", "emulate"), str(run_dir / f"{role}.npz"),
+                    [*python, "emulate" if role == "emulator" else "stream_per_sample" if per_sample else "stream",
+                     str(run_dir / f"{role}.npz"),
                      str(ROOT / "scripts" / script), *overrides, f"hydra.run.dir={run_dir / role}"],
                     cwd=ROOT, env=ctx.env(), stdout=log, stderr=subprocess.STDOUT, preexec_fn=_pinned(cpu)))
         timeout_s = 300 + 3 * n / FS_HZ / max(speed, 1.0)
