@@ -16,6 +16,7 @@ sensor's own times, so each segment equals ``compensate.py`` on that segment's s
 from __future__ import annotations
 
 import contextlib
+import importlib
 import logging
 import signal
 import threading
@@ -98,6 +99,9 @@ def run_stream(bundle_dir: str | Path, port: str, output: str | Path, protocol: 
     parser = make_parser(protocol, layout, required=compensator.input_columns, check=check)
     if protocol == "lpbus":
         compensator.check_columns(dict.fromkeys(parser.columns), source=f"LP-BUS fields {list(parser.layout.fields)}")
+    if tb_dir is not None and allan_every_s > 0:
+        # seconds of imports: done before the port opens, when the sensor's first frames would wait for them
+        importlib.import_module("torch.utils.tensorboard")
     opened = None if wait_at_start else open_port_or_fail(
         port, baud, read_timeout_s, hint="; pass reconnect.wait_at_start=true to wait for it")
     try:

@@ -9,7 +9,8 @@ changed) and then runs the script as ``__main__``. Times are ``time.perf_counter
 Linux is CLOCK_MONOTONIC, one clock for both processes.
 
 stream: ``parser.feed`` (the bytes of a read were just taken; its samples are stamped with that
-time), ``Compensator.process``, ``LiveWriter.write`` (the output rows are written and flushed: the
+time; and the process's CPU time, which with the last write's gives the CPU the stream used, whatever
+else ran on its core), ``Compensator.process``, ``LiveWriter.write`` (the output rows are written and flushed: the
 latency of each sample in them ends), ``LiveAllan.add_many`` and ``LiveAllan.report`` (the last
 report, which ``finish`` makes after the stream stopped, is kept apart); RSS every 1000 rows.
 stream_per_sample: the same, with every read's chunk split into chunks of one sample, so each
@@ -59,11 +60,13 @@ class StreamProbe:
         self.latency, self.written_at = np.full(capacity, np.nan), np.full(capacity, np.nan)
         self.n_written = 0
         self.reports = array("d")
+        self.chunk_rows = array("l")  # rows per LiveWriter.write: the chunk sizes
         self.final_report = float("nan")
         self.finishing = False
         self.stage = dict.fromkeys(["parse", "process", "write", "allan_add"], 0.0)
         self.rss: list[tuple[int, float, float]] = [(0, time.perf_counter(), _rss_mb())]
         self.first_read: float | None = None
+        self.first_read_cpu = self.last_write_cpu = float("nan")  # process CPU time, s: the load-free cost
         perf = time.perf_counter
 
         def make_parser(original, *args, **kwargs):
@@ -73,7 +76,7 @@ class StreamProbe:
             def timed_feed(data: bytes):
                 start = perf()
                 if self.first_read is None:
-                    self.first_read = start
+                    self.first_read, self.first_read_cpu = start, time.process_time()
                 items = feed(data)
                 self.stage["parse"] += perf() - start
                 self.read_at.extend(start for item in items if isinstance(item, Sample))
@@ -96,6 +99,8 @@ class StreamProbe:
             original(writer, *args, **kwargs)
             done = perf()
             self.stage["write"] += done - start
+            self.chunk_rows.append(writer.n_rows - before)
+            self.last_write_cpu = time.process_time()
             for _ in range(writer.n_rows - before):
                 i, self.n_written = self.n_written, self.n_written + 1
                 self.written_at[i] = done
@@ -127,10 +132,12 @@ class StreamProbe:
 
     def save(self, path: str) -> None:
         meta = {"stage_s": self.stage, "first_read": self.first_read, "unwritten": len(self.read_at),
+                "cpu_s": self.last_write_cpu - self.first_read_cpu,
                 "final_report_s": self.final_report}
         n = self.n_written
         np.savez(path, latency=self.latency[:n], written_at=self.written_at[:n],
-                 reports=np.asarray(self.reports), rss=np.asarray(self.rss), meta=np.array(json.dumps(meta)))
+                 reports=np.asarray(self.reports), rss=np.asarray(self.rss), chunk_rows=np.asarray(self.chunk_rows),
+                 meta=np.array(json.dumps(meta)))
 
 
 def _one_item_chunks(original, *args, **kwargs):
