@@ -4,10 +4,10 @@ Every read of the port is one chunk: the good samples it completed go through
 ``Compensator.process`` together, the same causal code the offline path runs on a whole file, so
 the output equals ``compensate.py`` on the good samples, and a lone frame is answered at once
 (:mod:`.chunk`). The output has the offline columns (``time_s``, compensated ``gyro_*_dps``,
-``temp_c``, ``out_of_range``) and a chunk's lines are on disk before the next read (:mod:`.output`). Faults
-are counted by reason; the Allan terms of the compensated rate (N and B per axis) go to
-TensorBoard every ``allan_every_s`` of data, and the Allan curves as a figure when the run stops
-(:mod:`.live_allan`).
+``temp_c``, ``out_of_range``) and a chunk's lines are on disk before the next read
+(:mod:`.output`). Faults are counted by reason; the Allan terms of the compensated rate (N and B
+per axis) go to TensorBoard every ``allan_every_s`` of data, and the Allan curves as a figure
+when the run stops (:mod:`.live_allan`).
 
 A sensor clock that restarts (a replug: time goes back, or jumps far ahead) starts a new segment:
 the compensator restarts from its power-on state, as the sensor did, and the output keeps the

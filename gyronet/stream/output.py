@@ -1,10 +1,10 @@
 """The live output CSV and the run summary, written so that a kill or a full disk never leaves half a line.
 
-Each batch of compensated samples (a chunk of the stream: one sample, or every frame a read
-brought) is one ``os.write`` of whole lines on an unbuffered file: a kill (even SIGKILL) leaves
-complete lines only, and a write that fails part-way (ENOSPC, EIO) is cut back to the last
-complete line before the error is raised. The summary JSON is written to a temporary
-file and renamed, so it is whole or absent.
+Each chunk of compensated samples (one sample, or every frame that one read brought) is one
+``os.write`` of whole lines on an unbuffered file: a kill (even SIGKILL) leaves complete lines
+only, and a write that fails part-way (ENOSPC, EIO) is cut back to its last complete line before
+the error is raised. The summary JSON is written to a temporary file and renamed, so it is whole
+or absent.
 """
 from __future__ import annotations
 
@@ -13,6 +13,7 @@ import json
 import logging
 import os
 from pathlib import Path
+
 import numpy as np
 
 from gyronet.compensator import Compensated

@@ -71,15 +71,14 @@ def read_chunks(port: serial.SerialBase | None, parser: Parser, *, url: str | No
                 sleep: Callable[[float], None] = time.sleep) -> Iterator[list[Sample | Fault]]:
     """Yield, read by read, the samples and faults that the bytes arriving on ``port`` make, in order.
 
-    Each read takes what is waiting (at least one byte, or nothing after ``timeout_s``; then, without
-    waiting, whatever else has arrived, up to ``chunk_bytes``), and the list it yields holds every
-    item those bytes complete (none: nothing is yielded). So a single
-    frame is yielded as soon as its last byte arrives, and a flood comes in chunks of every
-    complete frame already read, which a consumer can process in one go. When the port fails
-    (``SerialException`` or ``OSError``), a chunk of ``Fault("port_lost")`` and what flushing the
-    parser gives (a frame cut by the loss is a ``truncated`` fault) is yielded, and the port is
-    reopened from ``url`` with exponential backoff. The parser keeps its state (CSV header, last
-    time) across the gap.
+    Each read takes what is waiting (at least one byte, or nothing after ``timeout_s``; then,
+    without waiting, whatever else has arrived, up to ``chunk_bytes``), and the list it yields
+    holds every item those bytes complete (nothing is yielded for none). So a single frame is
+    yielded as soon as its last byte arrives, and a flood comes in chunks of every complete frame
+    already read, which a consumer can process in one go. When the port fails (``SerialException``
+    or ``OSError``), a chunk of ``Fault("port_lost")`` and what flushing the parser gives (a frame
+    cut by the loss is a ``truncated`` fault) is yielded, and the port is reopened from ``url``
+    with exponential backoff. The parser keeps its state (CSV header, last time) across the gap.
 
     Parameters
     ----------

@@ -8,16 +8,17 @@ The library has no per-sample timing hook, so this wraps methods from outside (t
 changed) and then runs the script as ``__main__``. Times are ``time.perf_counter()``, which on
 Linux is CLOCK_MONOTONIC, one clock for both processes.
 
-stream: ``parser.feed`` (the bytes of a read were just taken; its samples are stamped with that
-time; and the process's CPU time, which with the last write's gives the CPU the stream used, whatever
-else ran on its core), ``Compensator.process``, ``LiveWriter.write`` (the output rows are written and flushed: the
-latency of each sample in them ends), ``LiveAllan.add_many`` and ``LiveAllan.report`` (the last
-report, which ``finish`` makes after the stream stopped, is kept apart); RSS every 1000 rows.
+stream: ``parser.feed`` (the bytes of a read were just taken: its samples are stamped with that
+time, and the first one starts the CPU clock), ``Compensator.process``, ``LiveWriter.write`` (the
+output rows are written and flushed: the latency of each sample in them ends; the last one stops
+the CPU clock, which gives the CPU time the stream used whatever else ran on its core),
+``LiveAllan.add_many`` and ``LiveAllan.report`` (the last report, which ``finish`` makes after the
+stream stopped, is kept apart); RSS every 1000 rows. The per-sample arrays are allocated and
+touched before the script starts (``max_samples=`` sizes them), so the probe's own memory does not
+show up as growth of the stream's RSS.
 stream_per_sample: the same, with every read's chunk split into chunks of one sample, so each
 sample has its own ``Compensator.process`` call and write: the loop as it was before chunks, the
-reference the chunked loop is compared with. The per-sample
-arrays are allocated and touched before the script starts (``max_samples=`` sizes them), so the
-probe's own memory does not show up as growth of the stream's RSS.
+reference that the chunked loop is compared with.
 emulate: ``PtySensor.write`` (the frame's last byte is in the kernel).
 """
 from __future__ import annotations
