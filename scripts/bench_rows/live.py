@@ -66,7 +66,8 @@ def _run_pair(ctx: Context, name: str, recording: Path, bundle: Path, protocol: 
                   "reader_timeout_s=120", *ticks]),
                 ("stream", STREAM_CPU, "stream.py",
                  [f"model={bundle}", f"port={link}", f"protocol={protocol}", f"output={run_dir / 'live.csv'}",
-                  f"max_samples={n}", "reconnect.give_up_s=10", "resample=true", *ticks])):
+                  f"max_samples={n}", "reconnect.give_up_s=10", "reconnect.wait_at_start=true", "resample=true",
+                  *ticks])):
             with open(run_dir / f"{role}.log", "w") as log:
                 processes.append(subprocess.Popen(
                     [*python, "emulate" if role == "emulator" else "stream_per_sample" if per_sample else "stream",
