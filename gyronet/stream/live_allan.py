@@ -91,7 +91,7 @@ class LiveAllan:
             self.next_s = time_s + self.every_s
 
     def add_many(self, time_s: np.ndarray, rate_dps: np.ndarray) -> None:
-        """Add samples (n,) and (n, 3) in one go: the same bins and reports as ``add`` on each in turn."""
+        """Add samples (n,) and (n, 3) in one go: the bins (to rounding) and reports of ``add`` on each in turn."""
         time_s = np.asarray(time_s, dtype=np.float64) + self._shift_s
         rate_dps = np.asarray(rate_dps, dtype=np.float64).reshape(-1, 3)
         if len(time_s) == 0:
@@ -132,7 +132,7 @@ class LiveAllan:
         starts = np.flatnonzero(np.concatenate([[True], index[1:] != index[:-1]]))
         counts = np.diff(np.append(starts, len(index)))
         first = 0
-        if index[0] == self._bin:  # the open bin goes on: sum in the same order as add() does
+        if index[0] == self._bin:  # the open bin goes on
             self._sum = np.add.reduce(np.vstack([self._sum, rate_dps[:counts[0]]]), axis=0)
             self._count += int(counts[0])
             first = 1
@@ -145,7 +145,7 @@ class LiveAllan:
         self._bin, self._sum, self._count = int(index[starts[-1]]), sums[-1].copy(), int(counts[-1])
 
     def _append(self, index: np.ndarray, means_dps: np.ndarray) -> None:
-        """Append completed bins to the history, growing it or dropping its older half as ``_close_bin`` does."""
+        """Append completed bins to the history, growing it, or dropping its older half once it holds ``max_bins``."""
         done = 0
         while done < len(index):
             if self._n == len(self._index):
