@@ -76,3 +76,43 @@ def test_long_gaps_and_restarted_clocks_stay_breaks():
     assert allan.bins["filled"] == 0 and allan.bins["used"] == pytest.approx(470 / allan.bin_s, abs=2)
     bridged_time_s, bridged_rate, n_filled = allan.bridged()
     assert np.allclose(np.diff(bridged_time_s), allan.bin_s) and n_filled == 0
+
+
+@pytest.mark.parametrize("fs_hz", [2.0, 10.0, 1000.0])
+def test_add_many_in_chunks_gives_the_bins_and_reports_of_add_one_by_one(fs_hz):
+    """The chunked live loop adds a read's samples at once: same bins (to rounding), reports at the same steps."""
+    rng = np.random.default_rng(1)
+    time_s = (np.arange(int(400 * fs_hz)) / fs_hz + 3.0)[rng.random(int(400 * fs_hz)) > 0.02]  # lost frames
+    rate_dps = rng.normal(0.0, 0.1, (len(time_s), 3))
+    restart = len(time_s) // 2
+    time_s[restart:] -= 100.0  # a restarted sensor clock
+    monitors = [LiveAllan(None, 60.0, fs_hz, max_history_s=100.0) for _ in range(2)]  # the cap is reached
+    reports = [[], []]
+    for monitor, seen in zip(monitors, reports):
+        def report(step, figure=False, monitor=monitor, seen=seen, original=monitor.report):
+            seen.append((step, monitor.rate_dps.copy()))
+            original(step, figure)
+        monitor.report = report
+    one, many = monitors
+    for i in range(len(time_s)):
+        if i == restart:
+            one.new_segment(time_s[i])
+        one.add(time_s[i], rate_dps[i])
+    start = 0
+    for size in rng.integers(1, 3000, size=len(time_s)):
+        stop = min(start + int(size), len(time_s))
+        if start < restart <= stop:
+            many.add_many(time_s[start:restart], rate_dps[start:restart])
+            many.new_segment(time_s[restart])
+            start = restart
+        many.add_many(time_s[start:stop], rate_dps[start:stop])
+        if stop == len(time_s):
+            break
+        start = stop
+    one.finish()
+    many.finish()
+    assert [step for step, _ in reports[0]] == [step for step, _ in reports[1]] and len(reports[0]) >= 5
+    for (_, a), (_, b) in zip(*reports):
+        np.testing.assert_allclose(a, b, rtol=1e-12, atol=1e-15)
+    np.testing.assert_array_equal(one.time_s, many.time_s)
+    assert one.bins == many.bins

@@ -23,11 +23,13 @@ def _stream(monkeypatch, recording):
     from gyronet.stream import Sample
 
     def scripted(*args, **kwargs):
-        for row in range(len(recording)):
-            yield Sample(float(recording.time_s[row]), {c: float(recording.columns[c][row])
-                                                        for c in ("temp_c", *GYRO_COLUMNS)})
+        samples = [Sample(float(recording.time_s[row]), {c: float(recording.columns[c][row])
+                                                         for c in ("temp_c", *GYRO_COLUMNS)})
+                   for row in range(len(recording))]
+        for start in range(0, len(samples), 13):  # reads of 13 samples: the rate gate opens inside one
+            yield samples[start:start + 13]
 
-    monkeypatch.setattr(live, "read_samples", scripted)
+    monkeypatch.setattr(live, "read_chunks", scripted)
     return live
 
 

@@ -183,12 +183,13 @@ def test_run_stream_stops_on_max_samples_and_ctrl_c(bundle, tmp_path, monkeypatc
     from gyronet.stream import Fault, Sample
 
     def scripted(*args, **kwargs):
-        yield Fault("garbage", b"\x00")
-        for i in range(20):
-            yield Sample(0.5 * i, {"temp_c": 25.0, "gyro_x_dps": 0.1, "gyro_y_dps": 0.2, "gyro_z_dps": 0.3})
+        yield [Fault("garbage", b"\x00")]
+        # one read brings all 20: max_samples cuts the chunk
+        yield [Sample(0.5 * i, {"temp_c": 25.0, "gyro_x_dps": 0.1, "gyro_y_dps": 0.2, "gyro_z_dps": 0.3})
+               for i in range(20)]
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(live, "read_samples", scripted)
+    monkeypatch.setattr(live, "read_chunks", scripted)
     summary = live.run_stream(bundle, "/dev/null", tmp_path / "live.csv", allan_every_s=0,
                               max_samples=5 if how == "max_samples" else None, reconnect={"wait_at_start": True})
     assert summary["stopped"] == how
@@ -201,14 +202,16 @@ def test_run_stream_stops_on_max_samples_and_ctrl_c(bundle, tmp_path, monkeypatc
 # --- issue 10: restarted clocks, re-sent headers, signals, missing ports, a full disk ---------
 
 def feeding(chunks):
-    """A ``read_samples`` stand-in that feeds scripted bytes through the real parser."""
+    """A ``read_chunks`` stand-in that feeds scripted bytes through the real parser, one read a chunk."""
 
     def scripted(port, parser, *, should_stop, **kwargs):
         for chunk in chunks:
             if should_stop():
                 return
-            yield from parser.feed(chunk)
-        yield from parser.flush()
+            items = parser.feed(chunk)
+            if items:
+                yield items
+        yield parser.flush()
 
     return scripted
 
@@ -237,7 +240,7 @@ def test_replugged_sensor_with_its_clock_restarted_loses_no_sample(bundle, paper
     second = {c: v[800:].copy() for c, v in recording.columns.items()}
     second["time_s"] = second["time_s"] - second["time_s"][0] + 0.25  # its clock starts again near 0
     lines = csv_stream(first, names) + csv_stream(second, names)
-    monkeypatch.setattr(live, "read_samples", feeding([encode_csv_header(names), *lines]))
+    monkeypatch.setattr(live, "read_chunks", feeding([encode_csv_header(names), *lines]))
     summary = live.run_stream(bundle, "sensor", tmp_path / "live.csv", protocol="csv", allan_every_s=0,
                               reconnect={"wait_at_start": True})
     assert summary["n_samples"] == 1200 and summary["faults"] == {} and summary["clock_restarts"] == 1
@@ -257,7 +260,7 @@ def test_resent_header_without_a_needed_column_does_not_stop_the_stream(bundle, 
     lines = csv_stream(recording.columns, names)
     cut = [n for n in names if n != "gyro_z_dps"]
     chunks = [encode_csv_header(names), *lines[:100], encode_csv_header(cut), b"#\n", *lines[100:]]
-    monkeypatch.setattr(live, "read_samples", feeding(chunks))
+    monkeypatch.setattr(live, "read_chunks", feeding(chunks))
     summary = live.run_stream(bundle, "sensor", tmp_path / "live.csv", protocol="csv", allan_every_s=0,
                               reconnect={"wait_at_start": True})
     assert summary["n_samples"] == 200 and summary["faults"] == {"bad_header": 1}
@@ -278,9 +281,9 @@ def test_signals_stop_the_run_even_when_the_parent_ignored_them(bundle, tmp_path
                 return
             if i == 20:
                 os.kill(os.getpid(), signum)  # handled in this (main) thread at the next bytecode
-            yield Sample(0.5 * i, {"temp_c": 25.0, "gyro_x_dps": 0.1, "gyro_y_dps": 0.2, "gyro_z_dps": 0.3})
+            yield [Sample(0.5 * i, {"temp_c": 25.0, "gyro_x_dps": 0.1, "gyro_y_dps": 0.2, "gyro_z_dps": 0.3})]
 
-    monkeypatch.setattr(live, "read_samples", scripted)
+    monkeypatch.setattr(live, "read_chunks", scripted)
     previous = signal.signal(signum, signal.SIG_IGN)  # what a shell's background job inherits
     try:
         with live.stop_on_signals() as stop:
@@ -341,11 +344,13 @@ def test_a_full_disk_stops_with_one_line_whole_lines_and_the_summary(bundle, tmp
     from gyronet.stream.output import OutputError
 
     def scripted(port, parser, *, should_stop, **kwargs):
-        for i in range(500):
-            yield Sample(0.5 * i, {"temp_c": 25.0 + 0.01 * i, "gyro_x_dps": 0.1, "gyro_y_dps": 0.2, "gyro_z_dps": 0.3})
+        samples = [Sample(0.5 * i, {"temp_c": 25.0 + 0.01 * i, "gyro_x_dps": 0.1, "gyro_y_dps": 0.2, "gyro_z_dps": 0.3})
+                   for i in range(500)]
+        for start in range(0, 500, 7):  # reads of 7 samples: the disk fills inside a chunk's write
+            yield samples[start:start + 7]
 
     path = tmp_path / "live.csv"
-    monkeypatch.setattr(live, "read_samples", scripted)
+    monkeypatch.setattr(live, "read_chunks", scripted)
     monkeypatch.setattr(output_module.os, "write", FullDisk(path, 5000))
     (tmp_path / "not-a-folder").write_text("")
     summary_path = tmp_path / ("summary.json" if summary_writable else "not-a-folder/summary.json")

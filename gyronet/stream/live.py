@@ -1,12 +1,13 @@
 """The live path: a sensor stream's good samples through a compensator bundle into a CSV.
 
-Each good sample goes through ``Compensator.process`` as it arrives, the same causal code the
-offline path runs on a whole file, so the output equals ``compensate.py`` on the good samples.
-The output has the offline columns (``time_s``, compensated ``gyro_*_dps``, ``temp_c``,
-``out_of_range``) and each line is on disk when the next sample is read (:mod:`.output`). Faults
-are counted by reason; the Allan terms of the compensated rate (N and B per axis) go to
-TensorBoard every ``allan_every_s`` of data, and the Allan curves as a figure when the run stops
-(:mod:`.live_allan`).
+Every read of the port is one chunk: the good samples it completed go through
+``Compensator.process`` together, the same causal code the offline path runs on a whole file, so
+the output equals ``compensate.py`` on the good samples, and a lone frame is answered at once
+(:mod:`.chunk`). The output has the offline columns (``time_s``, compensated ``gyro_*_dps``,
+``temp_c``, ``out_of_range``) and a chunk's lines are on disk before the next read
+(:mod:`.output`). Faults are counted by reason; the Allan terms of the compensated rate (N and B
+per axis) go to TensorBoard every ``allan_every_s`` of data, and the Allan curves as a figure
+when the run stops (:mod:`.live_allan`).
 
 A sensor clock that restarts (a replug: time goes back, or jumps far ahead) starts a new segment:
 the compensator restarts from its power-on state, as the sensor did, and the output keeps the
@@ -15,6 +16,7 @@ sensor's own times, so each segment equals ``compensate.py`` on that segment's s
 from __future__ import annotations
 
 import contextlib
+import importlib
 import logging
 import signal
 import threading
@@ -22,18 +24,18 @@ import time
 from pathlib import Path
 from typing import Any, Callable, Iterator, Mapping
 
-import numpy as np
-
 from gyronet.compensator import Compensator
-from gyronet.stream import FaultCounter, LpBusLayout, Sample, SampleCheck, make_parser, read_samples
+from gyronet.stream import FaultCounter, LpBusLayout, Sample, SampleCheck, make_parser
+from gyronet.stream.chunk import RATE_PROBE_SAMPLES, ChunkWriter, RateGate
 from gyronet.stream.live_allan import LiveAllan
 from gyronet.stream.lpbus_setup import LpBusSetup, LpBusStart, start_lpbus
 from gyronet.stream.output import LiveWriter, OutputError, output_names, write_summary
-from gyronet.stream.reader import open_port_or_fail
+from gyronet.stream.reader import open_port_or_fail, read_chunks
 
 log = logging.getLogger(__name__)
 
-__all__ = ["LiveAllan", "LiveWriter", "OutputError", "output_names", "run_stream", "stop_on_signals"]
+__all__ = ["LiveAllan", "LiveWriter", "OutputError", "RATE_PROBE_SAMPLES", "RateGate", "output_names", "run_stream",
+           "stop_on_signals"]
 
 
 def run_stream(bundle_dir: str | Path, port: str, output: str | Path, protocol: str = "lpbus",
@@ -102,6 +104,9 @@ def run_stream(bundle_dir: str | Path, port: str, output: str | Path, protocol: 
     parser = make_parser(protocol, layout, required=compensator.input_columns, check=check)
     if protocol == "lpbus" and lpbus is None:
         compensator.check_columns(dict.fromkeys(parser.columns), source=f"LP-BUS fields {list(parser.layout.fields)}")
+    if tb_dir is not None and allan_every_s > 0:
+        # seconds of imports: done before the port opens, when the sensor's first frames would wait for them
+        importlib.import_module("torch.utils.tensorboard")
     opened = None if wait_at_start else open_port_or_fail(
         port, baud, read_timeout_s, hint="; pass reconnect.wait_at_start=true to wait for it")
     sensor = None
@@ -116,7 +121,6 @@ def run_stream(bundle_dir: str | Path, port: str, output: str | Path, protocol: 
     writer = _tb_writer(tb_dir) if tb_dir is not None and allan_every_s > 0 else None
     allan = LiveAllan(writer, allan_every_s, float(compensator.meta["fs_hz"])) if allan_every_s > 0 else None
     counter = FaultCounter()
-    state = {"n_out_of_range": 0, "clock_restarts": 0, "sensor": sensor.as_dict() if sensor is not None else None}
     started = time.monotonic()
     stopped, failure = "port_gone", None
     external_stop = stop or (lambda: False)
@@ -125,41 +129,29 @@ def run_stream(bundle_dir: str | Path, port: str, output: str | Path, protocol: 
         return external_stop() or (duration_s is not None and time.monotonic() - started >= duration_s)
 
     log.info("streaming %s (%s, %d baud) through %s into %s", port, protocol, baud, bundle_dir, output)
-    items = read_samples(opened, parser, url=port, baud=baud, timeout_s=read_timeout_s, should_stop=should_stop,
+    chunks = read_chunks(opened, parser, url=port, baud=baud, timeout_s=read_timeout_s, should_stop=should_stop,
                          **options)
     gate = RateGate(compensator, resample, f"{port}: the stream",
                     RATE_PROBE_SAMPLES if max_samples is None else min(RATE_PROBE_SAMPLES, max_samples))
-
-    def write(samples: list[Sample]) -> bool:
-        """Compensate and write; True once ``max_samples`` rows are out."""
-        for sample in samples:
-            _compensate(compensator, sample, out, allan, port, state)
-            if max_samples is not None and out.n_rows >= max_samples:
-                return True
-        return False
-
+    sink = ChunkWriter(compensator, out, allan, port, max_samples)
     try:
         try:
-            for item in items:
-                counter.add(item)
-                if not isinstance(item, Sample):
-                    log.log(logging.WARNING if counter.counts[item.reason] == 1 else logging.DEBUG, "fault: %s", item)
-                    continue
-                if write(gate.push(item)):
+            for chunk in chunks:
+                if sink.write(_good_samples(chunk, counter, gate, sink)):
                     stopped = "max_samples"
                     break
             else:
                 stopped = "interrupted" if external_stop() else "duration" if should_stop() else "port_gone"
         except KeyboardInterrupt:
             stopped = "interrupted"
-        write(gate.flush())  # the samples held while the rate was measured
+        sink.write(gate.flush())  # the samples held while the rate was measured
     except OutputError as err:
         stopped, failure = "output_failed", err
     finally:
-        items.close()  # closes the port
+        chunks.close()  # closes the port
         out.close()
     _finish_allan(allan, writer)
-    summary = _summary(counter, compensator, out, allan, stopped, time.monotonic() - started, state)
+    summary = _summary(counter, compensator, out, allan, stopped, time.monotonic() - started, sink, sensor)
     log.info("stopped (%s): %s; %d out of the trained temperature range; %d clock restart(s)", stopped,
              counter.summary(), summary["n_out_of_range"], summary["clock_restarts"])
     summary_note = ""
@@ -175,57 +167,19 @@ def run_stream(bundle_dir: str | Path, port: str, output: str | Path, protocol: 
     return summary
 
 
-RATE_PROBE_SAMPLES = 20  # samples held at the start to measure the stream's rate (a median of their intervals)
-
-
-class RateGate:
-    """Hold a stream's first samples until its rate is known, then check it against the bundle's.
-
-    ``compensate.py`` checks a file's rate before its first sample; the live path cannot know the
-    rate before it has seen a few, so it holds them (``n_samples``: a 2 s delay at 10 Hz, once) and
-    then releases them in order. The median interval ignores lost frames and clock restarts.
-    """
-
-    def __init__(self, compensator: Compensator, resample: bool, source: str, n_samples: int = RATE_PROBE_SAMPLES):
-        self.compensator, self.resample, self.source = compensator, bool(resample), source
-        self.n_samples = max(1, int(n_samples))
-        self.held: list[Sample] | None = []  # None once the rate is checked
-
-    def push(self, sample: Sample) -> list[Sample]:
-        """The samples ready to compensate after ``sample`` arrived."""
-        if self.held is None:
-            return [sample]
-        self.held.append(sample)
-        return self.flush() if len(self.held) >= self.n_samples else []
-
-    def flush(self) -> list[Sample]:
-        """Check the rate on what is held (if two samples or more) and release them."""
-        held, self.held = self.held or [], None
-        intervals_s = [b.time_s - a.time_s for a, b in zip(held, held[1:]) if not b.new_segment and b.time_s > a.time_s]
-        if intervals_s:
-            fs_hz = 1.0 / float(np.median(intervals_s))
-            self.compensator.use_input_rate(fs_hz, self.resample, f"{self.source} (over its first {len(held)} samples)")
-        return held
-
-
-def _compensate(compensator: Compensator, sample: Sample, out: LiveWriter, allan: LiveAllan | None,
-                port: str, state: dict) -> None:
-    row = sample.row()
-    if out.n_rows == 0:
-        compensator.check_columns(row, source=f"{port}: the stream")
-    if sample.new_segment:
-        # the sensor restarted: so do the filters (from a clean state, never from the old one)
-        compensator.reset()
-        state["clock_restarts"] += 1
-        if allan is not None:
-            allan.new_segment(sample.time_s)
-    result = compensator.process({name: np.array([row[name]]) for name in compensator.input_columns})
-    out.write(sample.time_s, row["temp_c"], result)
-    if result.out_of_range[0]:
-        state["n_out_of_range"] += 1
-        log.debug("temp_c=%.3f at %.3f s outside the trained range", row["temp_c"], sample.time_s)
-    if allan is not None:
-        allan.add(sample.time_s, result.rate_dps[0])
+def _good_samples(chunk: list, counter: FaultCounter, gate: RateGate, sink: ChunkWriter) -> list[Sample]:
+    """Count a chunk's items, log its faults, and return its samples that are ready (up to ``max_samples``)."""
+    ready: list[Sample] = []
+    room = None if sink.max_samples is None else sink.max_samples - sink.out.n_rows
+    for item in chunk:
+        counter.add(item)
+        if not isinstance(item, Sample):
+            log.log(logging.WARNING if counter.counts[item.reason] == 1 else logging.DEBUG, "fault: %s", item)
+            continue
+        ready += gate.push(item)
+        if room is not None and len(ready) >= room:
+            break  # what follows is not read, as when the run stopped right after this sample
+    return ready
 
 
 @contextlib.contextmanager
@@ -292,11 +246,12 @@ def _finish_allan(allan: LiveAllan | None, writer) -> None:
 
 
 def _summary(counter: FaultCounter, compensator: Compensator, out: LiveWriter, allan: LiveAllan | None,
-             stopped: str, elapsed_s: float, state: dict) -> dict:
+             stopped: str, elapsed_s: float, sink: ChunkWriter,
+             sensor: LpBusStart | None = None) -> dict:
     return {"stopped": stopped, "n_samples": out.n_rows, "faults": counter.as_dict(),
-            "n_faults": counter.n_faults, "n_out_of_range": int(state["n_out_of_range"]),
-            "clock_restarts": int(state["clock_restarts"]),
+            "n_faults": counter.n_faults, "n_out_of_range": int(sink.n_out_of_range),
+            "clock_restarts": int(sink.clock_restarts),
             "temp_range_c": list(compensator.temp_range_c), "elapsed_s": round(elapsed_s, 3),
             "output": str(out.path), "allan": allan.last if allan is not None else {},
             "allan_bins": allan.bins if allan is not None else {},
-            **({"sensor": state["sensor"]} if state.get("sensor") else {})}
+            **({"sensor": sensor.as_dict()} if sensor is not None else {})}

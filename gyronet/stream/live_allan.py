@@ -90,6 +90,27 @@ class LiveAllan:
             self.report(step=int(round(time_s - self._start_s)))
             self.next_s = time_s + self.every_s
 
+    def add_many(self, time_s: np.ndarray, rate_dps: np.ndarray) -> None:
+        """Add samples (n,) and (n, 3) in one go: the bins (to rounding) and reports of ``add`` on each in turn."""
+        time_s = np.asarray(time_s, dtype=np.float64) + self._shift_s
+        rate_dps = np.asarray(rate_dps, dtype=np.float64).reshape(-1, 3)
+        if len(time_s) == 0:
+            return
+        if self._start_s is None:
+            self._start_s = float(time_s[0])
+            self.next_s = time_s[0] + self.every_s
+        start = 0
+        while start < len(time_s):
+            # the first sample at or after next_s reports, once it is in its bin
+            due = np.flatnonzero(time_s[start:] >= self.next_s)
+            stop = start + int(due[0]) + 1 if len(due) else len(time_s)
+            self._add_to_bins(time_s[start:stop], rate_dps[start:stop])
+            self._last_s = float(time_s[stop - 1])
+            if len(due):
+                self.report(step=int(round(self._last_s - self._start_s)))
+                self.next_s = self._last_s + self.every_s
+            start = stop
+
     def new_segment(self, next_time_s: float) -> None:
         """The sensor clock restarted: the sample at ``next_time_s`` continues after a break."""
         if self._last_s is None:
@@ -101,20 +122,49 @@ class LiveAllan:
     def _close_bin(self) -> None:
         if self._count == 0:
             return
-        if self._n == len(self._index):
-            if self._n >= self.max_bins:  # keep the newest half of the history
-                keep = self._n // 2
-                self._index[:keep] = self._index[self._n - keep:self._n]
-                self._rate_dps[:keep] = self._rate_dps[self._n - keep:self._n]
-                self._n = keep
-            else:
-                self._index = np.resize(self._index, 2 * self._n)
-                self._rate_dps = np.resize(self._rate_dps, (2 * self._n, 3))
-        self._index[self._n] = self._bin
-        self._rate_dps[self._n] = self._sum / self._count
-        self._n += 1
-        self._sum[:] = 0.0
+        self._append(np.array([self._bin]), (self._sum / self._count)[None])
+        self._sum = np.zeros(3)
         self._count = 0
+
+    def _add_to_bins(self, time_s: np.ndarray, rate_dps: np.ndarray) -> None:
+        """Sum samples (time increasing) into their bins; the last bin stays open, as in ``add``."""
+        index = np.floor_divide(time_s - self._start_s + 0.5 / self.fs_hz, self.bin_s).astype(np.int64)
+        starts = np.flatnonzero(np.concatenate([[True], index[1:] != index[:-1]]))
+        counts = np.diff(np.append(starts, len(index)))
+        first = 0
+        if index[0] == self._bin:  # the open bin goes on
+            self._sum = np.add.reduce(np.vstack([self._sum, rate_dps[:counts[0]]]), axis=0)
+            self._count += int(counts[0])
+            first = 1
+        if first == len(starts):
+            return
+        self._close_bin()
+        sums = np.add.reduceat(rate_dps, starts[first:], axis=0)
+        # every run but the last is a complete bin; the last one is the new open bin
+        self._append(index[starts[first:-1]], sums[:-1] / counts[first:-1, None])
+        self._bin, self._sum, self._count = int(index[starts[-1]]), sums[-1].copy(), int(counts[-1])
+
+    def _append(self, index: np.ndarray, means_dps: np.ndarray) -> None:
+        """Append completed bins to the history, growing it, or dropping its older half once it holds ``max_bins``."""
+        done = 0
+        while done < len(index):
+            if self._n == len(self._index):
+                self._make_room()
+            take = min(len(index) - done, len(self._index) - self._n)
+            self._index[self._n:self._n + take] = index[done:done + take]
+            self._rate_dps[self._n:self._n + take] = means_dps[done:done + take]
+            self._n += take
+            done += take
+
+    def _make_room(self) -> None:
+        if self._n >= self.max_bins:  # keep the newest half of the history
+            keep = self._n // 2
+            self._index[:keep] = self._index[self._n - keep:self._n]
+            self._rate_dps[:keep] = self._rate_dps[self._n - keep:self._n]
+            self._n = keep
+        else:
+            self._index = np.resize(self._index, 2 * self._n)
+            self._rate_dps = np.resize(self._rate_dps, (2 * self._n, 3))
 
     def bridged(self) -> tuple[np.ndarray, np.ndarray, int]:
         """The longest stretch of bins with short gaps filled: mid-times, s, rates (n, 3), and how many were filled."""

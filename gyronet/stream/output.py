@@ -1,17 +1,18 @@
 """The live output CSV and the run summary, written so that a kill or a full disk never leaves half a line.
 
-Each compensated sample is one ``os.write`` of whole lines on an unbuffered file: a kill (even
-SIGKILL) leaves complete lines only, and a write that fails part-way (ENOSPC, EIO) is cut back
-to the last complete line before the error is raised. The summary JSON is written to a temporary
-file and renamed, so it is whole or absent.
+Each chunk of compensated samples (one sample, or every frame that one read brought) is one
+``os.write`` of whole lines on an unbuffered file: a kill (even SIGKILL) leaves complete lines
+only, and a write that fails part-way (ENOSPC, EIO) is cut back to its last complete line before
+the error is raised. The summary JSON is written to a temporary file and renamed, so it is whole
+or absent.
 """
 from __future__ import annotations
 
+import itertools
 import json
 import logging
 import os
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
@@ -54,13 +55,16 @@ class LiveWriter:
         header = f"# compensated_by={Path(bundle_dir).resolve()}\n" + ",".join(self.names) + "\n"
         self._write(header.encode("utf-8"), 0)
 
-    def write(self, time_s: float, temp_c: float, out: Compensated) -> None:
-        """Write the compensated samples of ``out`` (here one)."""
+    def write(self, time_s: np.ndarray, temp_c: np.ndarray, out: Compensated) -> None:
+        """Write the compensated samples of ``out`` (one or many) in one ``os.write``."""
         columns = output_columns(np.atleast_1d(time_s), np.atleast_1d(temp_c), out)
         n = len(columns["time_s"])
-        text = "".join(",".join(repr(_plain(columns[name][row])) for name in self.names) + "\n"
-                       for row in range(n))
-        self._write(text.encode("ascii"), n)
+        if n == 0:
+            return
+        # %r of a Python float is repr: the shortest text that reads back as the same float64
+        line = ",".join("%d" if columns[name].dtype.kind in "biu" else "%r" for name in self.names) + "\n"
+        values = zip(*(columns[name].tolist() for name in self.names))
+        self._write(((line * n) % tuple(itertools.chain.from_iterable(values))).encode("ascii"), n)
 
     def _write(self, data: bytes, n_rows: int) -> None:
         if self._fd is None:
@@ -70,11 +74,15 @@ class LiveWriter:
             while done < len(data):
                 done += os.write(self._fd, data[done:])
         except OSError as err:
-            if done:  # whole lines only: cut the part-written one off again
+            # whole lines only: keep the complete lines written, cut the part-written one off again
+            kept = data.rfind(b"\n", 0, done) + 1
+            if kept < done:
                 try:
-                    os.ftruncate(self._fd, self._size)
+                    os.ftruncate(self._fd, self._size + kept)
                 except OSError:  # pragma: no cover - truncating frees space; nothing else to try
                     log.error("%s: could not cut a part-written line off", self.path)
+            self._size += kept
+            self.n_rows += data.count(b"\n", 0, kept) if n_rows else 0
             self.close()
             raise OutputError(f"{self.path}: cannot write ({err.strerror or err}) after {self.n_rows} rows; "
                               f"the file ends with the last complete row") from None
@@ -85,10 +93,6 @@ class LiveWriter:
         if self._fd is not None:
             os.close(self._fd)
             self._fd = None
-
-
-def _plain(value: Any) -> float | int:
-    return int(value) if isinstance(value, (np.integer, np.bool_)) else float(value)
 
 
 def write_summary(path: str | Path, summary: dict) -> None:

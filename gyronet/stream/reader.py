@@ -55,18 +55,30 @@ def open_port_or_fail(url: str, baud: int = DEFAULT_BAUD, timeout_s: float = 0.0
         raise PortError(f"port {url}: cannot open it ({reason}){hint}") from None
 
 
-def read_samples(port: serial.SerialBase | None, parser: Parser, *, url: str | None = None,
-                 baud: int = DEFAULT_BAUD, timeout_s: float = 0.05,
-                 should_stop: Callable[[], bool] | None = None, backoff_s: float = 0.1,
-                 max_backoff_s: float = 2.0, give_up_s: float | None = None, chunk_bytes: int = 4096,
-                 sleep: Callable[[float], None] = time.sleep) -> Iterator[Sample | Fault]:
-    """Yield the samples and faults that the bytes arriving on ``port`` make, in order.
+def read_samples(port: serial.SerialBase | None, parser: Parser, **options) -> Iterator[Sample | Fault]:
+    """Yield the samples and faults that the bytes arriving on ``port`` make, in order, one at a time.
 
-    Each read takes what is waiting (at least one byte, or nothing after ``timeout_s``), so a
-    sample is yielded as soon as its last byte arrives. When the port fails (``SerialException``
-    or ``OSError``), a ``Fault("port_lost")`` is yielded, the parser is flushed (a frame cut by
-    the loss is a ``truncated`` fault) and the port is reopened from ``url`` with exponential
-    backoff. The parser keeps its state (CSV header, last time) across the gap.
+    :func:`read_chunks` with its chunks taken apart; the same parameters.
+    """
+    for chunk in read_chunks(port, parser, **options):
+        yield from chunk
+
+
+def read_chunks(port: serial.SerialBase | None, parser: Parser, *, url: str | None = None,
+                baud: int = DEFAULT_BAUD, timeout_s: float = 0.05,
+                should_stop: Callable[[], bool] | None = None, backoff_s: float = 0.1,
+                max_backoff_s: float = 2.0, give_up_s: float | None = None, chunk_bytes: int = 65536,
+                sleep: Callable[[float], None] = time.sleep) -> Iterator[list[Sample | Fault]]:
+    """Yield, read by read, the samples and faults that the bytes arriving on ``port`` make, in order.
+
+    Each read takes what is waiting (at least one byte, or nothing after ``timeout_s``; then,
+    without waiting, whatever else has arrived, up to ``chunk_bytes``), and the list it yields
+    holds every item those bytes complete (nothing is yielded for none). So a single frame is
+    yielded as soon as its last byte arrives, and a flood comes in chunks of every complete frame
+    already read, which a consumer can process in one go. When the port fails (``SerialException``
+    or ``OSError``), a chunk of ``Fault("port_lost")`` and what flushing the parser gives (a frame
+    cut by the loss is a ``truncated`` fault) is yielded, and the port is reopened from ``url``
+    with exponential backoff. The parser keeps its state (CSV header, last time) across the gap.
 
     Parameters
     ----------
@@ -88,7 +100,7 @@ def read_samples(port: serial.SerialBase | None, parser: Parser, *, url: str | N
     give_up_s
         Stop after the port has been gone this long, s; None retries until ``should_stop``.
     chunk_bytes
-        Most bytes taken in one read.
+        Most bytes taken in one read (64 KiB: more than a pty or a USB serial driver buffers).
     sleep
         Waits between attempts (a test passes a fake).
     """
@@ -102,17 +114,21 @@ def read_samples(port: serial.SerialBase | None, parser: Parser, *, url: str | N
                     return
             try:
                 data = port.read(min(max(1, port.in_waiting), chunk_bytes))
+                # and whatever else already waits (a pty hands over 4 KiB a read), never waiting for more
+                while data and len(data) < chunk_bytes and port.in_waiting:
+                    data += port.read(min(port.in_waiting, chunk_bytes - len(data)))
             except PORT_ERRORS as err:
                 log.warning("port %s lost: %s", url, err)
-                yield Fault("port_lost", detail=str(err)[:80])
-                yield from parser.flush()
+                yield [Fault("port_lost", detail=str(err)[:80]), *parser.flush()]
                 _close_quietly(port)
                 port = None
                 if url is None:
                     return
                 continue
             if data:
-                yield from parser.feed(data)
+                items = parser.feed(data)
+                if items:
+                    yield items
     finally:
         if port is not None:
             _close_quietly(port)

@@ -1,18 +1,24 @@
 """Run scripts/stream.py or scripts/emulate_sensor.py with timing hooks; the ``stream_pty`` row starts it.
 
     python scripts/bench_rows/probe.py stream OUT.npz scripts/stream.py model=... port=... ...
+    python scripts/bench_rows/probe.py stream_per_sample OUT.npz scripts/stream.py model=... port=... ...
     python scripts/bench_rows/probe.py emulate OUT.npz scripts/emulate_sensor.py input=... ...
 
 The library has no per-sample timing hook, so this wraps methods from outside (the library is not
 changed) and then runs the script as ``__main__``. Times are ``time.perf_counter()``, which on
 Linux is CLOCK_MONOTONIC, one clock for both processes.
 
-stream: ``parser.feed`` (the bytes of a chunk were just read; its samples are stamped with that
-time), ``Compensator.process``, ``LiveWriter.write`` (the output row is written and flushed: the
-sample's latency ends), ``LiveAllan.add`` and ``LiveAllan.report`` (the last report, which
-``finish`` makes after the stream stopped, is kept apart); RSS every 1000 rows. The per-sample
-arrays are allocated and touched before the script starts (``max_samples=`` sizes them), so the
-probe's own memory does not show up as growth of the stream's RSS.
+stream: ``parser.feed`` (the bytes of a read were just taken: its samples are stamped with that
+time, and the first one starts the CPU clock), ``Compensator.process``, ``LiveWriter.write`` (the
+output rows are written and flushed: the latency of each sample in them ends; the last one stops
+the CPU clock, which gives the CPU time the stream used whatever else ran on its core),
+``LiveAllan.add_many`` and ``LiveAllan.report`` (the last report, which ``finish`` makes after the
+stream stopped, is kept apart); RSS every 1000 rows. The per-sample arrays are allocated and
+touched before the script starts (``max_samples=`` sizes them), so the probe's own memory does not
+show up as growth of the stream's RSS.
+stream_per_sample: the same, with every read's chunk split into chunks of one sample, so each
+sample has its own ``Compensator.process`` call and write: the loop as it was before chunks, the
+reference that the chunked loop is compared with.
 emulate: ``PtySensor.write`` (the frame's last byte is in the kernel).
 """
 from __future__ import annotations
@@ -44,7 +50,7 @@ def _wrap(owner: Any, name: str, around: Callable) -> None:
 class StreamProbe:
     """Per-sample read and write times, time per stage, Allan report durations, RSS."""
 
-    def __init__(self, capacity: int) -> None:
+    def __init__(self, capacity: int, per_sample: bool = False) -> None:
         import gyronet.stream.live as live
         from gyronet.compensator import Compensator
         from gyronet.stream.events import Sample
@@ -55,11 +61,13 @@ class StreamProbe:
         self.latency, self.written_at = np.full(capacity, np.nan), np.full(capacity, np.nan)
         self.n_written = 0
         self.reports = array("d")
+        self.chunk_rows = array("l")  # rows per LiveWriter.write: the chunk sizes
         self.final_report = float("nan")
         self.finishing = False
         self.stage = dict.fromkeys(["parse", "process", "write", "allan_add"], 0.0)
         self.rss: list[tuple[int, float, float]] = [(0, time.perf_counter(), _rss_mb())]
         self.first_read: float | None = None
+        self.first_read_cpu = self.last_write_cpu = float("nan")  # process CPU time, s: the load-free cost
         perf = time.perf_counter
 
         def make_parser(original, *args, **kwargs):
@@ -69,7 +77,7 @@ class StreamProbe:
             def timed_feed(data: bytes):
                 start = perf()
                 if self.first_read is None:
-                    self.first_read = start
+                    self.first_read, self.first_read_cpu = start, time.process_time()
                 items = feed(data)
                 self.stage["parse"] += perf() - start
                 self.read_at.extend(start for item in items if isinstance(item, Sample))
@@ -87,14 +95,18 @@ class StreamProbe:
             return around
 
         def write(original, writer, *args, **kwargs):
+            before = writer.n_rows
             start = perf()
             original(writer, *args, **kwargs)
             done = perf()
             self.stage["write"] += done - start
-            i, self.n_written = self.n_written, self.n_written + 1
-            self.written_at[i] = done
-            self.latency[i] = done - self.read_at.popleft() if self.read_at else float("nan")
-            if writer.n_rows == 1 or writer.n_rows % RSS_EVERY == 0:
+            self.chunk_rows.append(writer.n_rows - before)
+            self.last_write_cpu = time.process_time()
+            for _ in range(writer.n_rows - before):
+                i, self.n_written = self.n_written, self.n_written + 1
+                self.written_at[i] = done
+                self.latency[i] = done - self.read_at.popleft() if self.read_at else float("nan")
+            if before == 0 or writer.n_rows // RSS_EVERY > before // RSS_EVERY:
                 self.rss.append((writer.n_rows, done, _rss_mb()))
 
         def report(original, *args, **kwargs):
@@ -113,16 +125,30 @@ class StreamProbe:
         _wrap(live, "make_parser", make_parser)
         _wrap(Compensator, "process", timed("process"))
         _wrap(live.LiveWriter, "write", write)
-        _wrap(live.LiveAllan, "add", timed("allan_add"))
+        _wrap(live.LiveAllan, "add_many", timed("allan_add"))
+        if per_sample:
+            _wrap(live, "read_chunks", _one_item_chunks)
         _wrap(live.LiveAllan, "report", report)
         _wrap(live.LiveAllan, "finish", finish)
 
     def save(self, path: str) -> None:
         meta = {"stage_s": self.stage, "first_read": self.first_read, "unwritten": len(self.read_at),
+                "cpu_s": self.last_write_cpu - self.first_read_cpu,
                 "final_report_s": self.final_report}
         n = self.n_written
         np.savez(path, latency=self.latency[:n], written_at=self.written_at[:n],
-                 reports=np.asarray(self.reports), rss=np.asarray(self.rss), meta=np.array(json.dumps(meta)))
+                 reports=np.asarray(self.reports), rss=np.asarray(self.rss), chunk_rows=np.asarray(self.chunk_rows),
+                 meta=np.array(json.dumps(meta)))
+
+
+def _one_item_chunks(original, *args, **kwargs):
+    chunks = original(*args, **kwargs)
+    try:
+        for chunk in chunks:
+            for item in chunk:
+                yield [item]
+    finally:
+        chunks.close()  # closes the port
 
 
 class EmulateProbe:
@@ -149,7 +175,8 @@ def main() -> int:
     mode, out_path, script, *overrides = sys.argv[1:]
     sys.path.pop(0)  # this folder: its modules must not shadow anything the script imports
     sizes = [int(o.split("=", 1)[1]) for o in overrides if o.startswith("max_samples=")]
-    probe = StreamProbe(sizes[-1] if sizes else 10_000_000) if mode == "stream" else EmulateProbe()
+    capacity = sizes[-1] if sizes else 10_000_000
+    probe = StreamProbe(capacity, mode == "stream_per_sample") if mode.startswith("stream") else EmulateProbe()
     sys.argv = [script, *overrides]
     code: Any = 0
     try:

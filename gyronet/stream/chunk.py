@@ -1,0 +1,135 @@
+"""The live loop's compute and write step: good samples through the compensator a chunk at a time.
+
+A chunk is every good sample that one read of the port completed (one sample when frames arrive
+one by one, hundreds in a flood). It goes through ``Compensator.process`` in one call, is written
+in one ``os.write`` and enters the live Allan monitor in one step, so a flood costs one model
+call per read instead of one per sample, and a lone frame is still answered at once. The
+compensator keeps its state across calls, so the numbers equal ``compensate.py`` on the same
+samples however they were chunked. A chunk is split where the sensor clock restarted (the filters
+restart there) and where the start-up window ends (so that motion in the window stops the run
+after the window's rows are written, as when each sample went on its own).
+"""
+from __future__ import annotations
+
+import logging
+from typing import Sequence
+
+import numpy as np
+
+from gyronet.compensator import Compensator
+from gyronet.stream.events import Sample
+from gyronet.stream.live_allan import LiveAllan
+from gyronet.stream.output import LiveWriter
+
+log = logging.getLogger(__name__)
+
+RATE_PROBE_SAMPLES = 20  # samples held at the start to measure the stream's rate (a median of their intervals)
+
+
+class RateGate:
+    """Hold a stream's first samples until its rate is known, then check it against the bundle's.
+
+    ``compensate.py`` checks a file's rate before its first sample; the live path cannot know the
+    rate before it has seen a few, so it holds them (``n_samples``: a 2 s delay at 10 Hz, once) and
+    then releases them in order. The median interval ignores lost frames and clock restarts.
+    """
+
+    def __init__(self, compensator: Compensator, resample: bool, source: str, n_samples: int = RATE_PROBE_SAMPLES):
+        self.compensator, self.resample, self.source = compensator, bool(resample), source
+        self.n_samples = max(1, int(n_samples))
+        self.held: list[Sample] | None = []  # None once the rate is checked
+
+    def push(self, sample: Sample) -> list[Sample]:
+        """The samples ready to compensate after ``sample`` arrived."""
+        if self.held is None:
+            return [sample]
+        self.held.append(sample)
+        return self.flush() if len(self.held) >= self.n_samples else []
+
+    def flush(self) -> list[Sample]:
+        """Check the rate on what is held (if two samples or more) and release them."""
+        held, self.held = self.held or [], None
+        intervals_s = [b.time_s - a.time_s for a, b in zip(held, held[1:]) if not b.new_segment and b.time_s > a.time_s]
+        if intervals_s:
+            fs_hz = 1.0 / float(np.median(intervals_s))
+            self.compensator.use_input_rate(fs_hz, self.resample, f"{self.source} (over its first {len(held)} samples)")
+        return held
+
+
+class ChunkWriter:
+    """Compensate good samples in chunks and write them; counts what the run summary reports.
+
+    Parameters
+    ----------
+    compensator
+        The bundle's compensator, reset for the stream's start.
+    out
+        The output CSV.
+    allan
+        The live Allan monitor (None: none).
+    port
+        The port's name, for messages.
+    max_samples
+        Rows after which the run stops (None: no limit); a chunk is cut there.
+    """
+
+    def __init__(self, compensator: Compensator, out: LiveWriter, allan: LiveAllan | None, port: str,
+                 max_samples: int | None = None):
+        self.compensator, self.out, self.allan, self.port = compensator, out, allan, port
+        self.max_samples = max_samples
+        self.columns = list(dict.fromkeys(["time_s", "temp_c", *compensator.input_columns]))
+        self.n_out_of_range = 0
+        self.clock_restarts = 0
+
+    @property
+    def full(self) -> bool:
+        """True once ``max_samples`` rows are out."""
+        return self.max_samples is not None and self.out.n_rows >= self.max_samples
+
+    def write(self, samples: Sequence[Sample]) -> bool:
+        """Compensate and write ``samples`` (in stream order); True once ``max_samples`` rows are out."""
+        if self.max_samples is not None:
+            samples = samples[:max(0, self.max_samples - self.out.n_rows)]
+        starts = [i for i, sample in enumerate(samples) if i == 0 or sample.new_segment]
+        for start, stop in zip(starts, [*starts[1:], len(samples)]):
+            self._segment(samples[start:stop])
+        return self.full
+
+    def _segment(self, samples: Sequence[Sample]) -> None:
+        """Samples of one sensor clock: the first may start a new segment, none of the others does."""
+        first = samples[0]
+        if self.out.n_rows == 0:
+            self.compensator.check_columns(first.row(), source=f"{self.port}: the stream")
+        if first.new_segment:
+            # the sensor restarted: so do the filters (from a clean state, never from the old one)
+            self.compensator.reset()
+            self.clock_restarts += 1
+            if self.allan is not None:
+                self.allan.new_segment(first.time_s)
+        columns = {"time_s": np.array([sample.time_s for sample in samples])}
+        for name in self.columns[1:]:
+            columns[name] = np.array([sample.values[name] for sample in samples])
+        split, n = self._startup_end(columns["time_s"]), len(samples)
+        for rows in (slice(0, split), slice(split, n)):
+            if rows.stop > rows.start:
+                self._compensate({name: values[rows] for name, values in columns.items()})
+
+    def _startup_end(self, time_s: np.ndarray) -> int:
+        """How many of these samples fall in a start-up window still open (0 when none is)."""
+        startup = self.compensator.startup
+        if startup is None or startup.done:
+            return 0
+        start_s = startup.start_time_s if startup.start_time_s is not None else time_s[0]
+        return int(np.count_nonzero(time_s - start_s < startup.still_s))
+
+    def _compensate(self, columns: dict[str, np.ndarray]) -> None:
+        result = self.compensator.process(columns)
+        self.out.write(columns["time_s"], columns["temp_c"], result)
+        flagged = np.flatnonzero(result.out_of_range)
+        self.n_out_of_range += len(flagged)
+        if len(flagged) and log.isEnabledFor(logging.DEBUG):
+            for row in flagged.tolist():
+                log.debug("temp_c=%.3f at %.3f s outside the trained range", columns["temp_c"][row],
+                          columns["time_s"][row])
+        if self.allan is not None:
+            self.allan.add_many(columns["time_s"], result.rate_dps)

@@ -1,0 +1,212 @@
+"""The live loop by chunks (issue 13 item 5): a read's good samples go through the compensator together.
+
+Chunked and per-sample processing must write the same file and the same summary on floods with
+faults, out-of-range temperatures, clock restarts and the start-up window's end inside a chunk,
+and both must equal the offline path on each segment's samples. A lone frame is still written
+before the next read.
+"""
+import numpy as np
+import pandas as pd
+import pytest
+
+from gyronet.compensator import Compensator
+from gyronet.data import GYRO_COLUMNS, Recording, load_recording
+from gyronet.offline import compensate_recording
+from gyronet.stream import FaultPlan, LpBusParser, Sample, lpbus_frame, plan_stream
+
+OUT_OF_RANGE_TEMP_C = 150.0
+
+
+def lpbus_bytes(columns: dict, faults: FaultPlan) -> bytes:
+    """The bytes an emulated LP-BUS sensor sends for ``columns`` with ``faults``, drops left out."""
+    plan = plan_stream(columns, "lpbus", faults)
+    return plan.preamble + b"".join(event.data for event in plan.events if not event.drop)
+
+
+def reads_of(data: bytes, seed: int, max_bytes: int = 6000) -> list[bytes]:
+    """``data`` cut at random into reads of 1 to ``max_bytes`` bytes: chunks of many frames, cut frames."""
+    rng = np.random.default_rng(seed)
+    cuts = np.cumsum(rng.integers(1, max_bytes, size=len(data) // 50 + 2))
+    cuts = [0, *cuts[cuts < len(data)].tolist(), len(data)]
+    return [data[a:b] for a, b in zip(cuts, cuts[1:])]
+
+
+def scripted_reads(reads: list[bytes], per_sample: bool):
+    """A ``read_chunks`` stand-in: the real parser on these reads, one chunk a read (or one an item)."""
+
+    def read_chunks(port, parser, *, should_stop, **kwargs):
+        for data in reads:
+            if should_stop():
+                return
+            items = parser.feed(data)
+            if per_sample:
+                yield from ([item] for item in items)
+            elif items:
+                yield items
+        yield parser.flush()
+
+    return read_chunks
+
+
+def run(monkeypatch, bundle, tmp_path, reads: list[bytes], per_sample: bool, name: str, **options):
+    import gyronet.stream.live as live
+
+    monkeypatch.setattr(live, "read_chunks", scripted_reads(reads, per_sample))
+    path = tmp_path / f"{name}.csv"
+    summary = live.run_stream(bundle, "sensor", path, allan_every_s=30, reconnect={"wait_at_start": True},
+                              **options)
+    return summary, pd.read_csv(path, comment="#")
+
+
+def offline_by_segment(bundle, reads: list[bytes], **startup) -> tuple[np.ndarray, np.ndarray]:
+    """The good samples' times and ``compensate_recording`` of each segment from a fresh state."""
+    parser, samples = LpBusParser(), []
+    for data in reads:
+        samples += [item for item in parser.feed(data) if isinstance(item, Sample)]
+    starts = [i for i, s in enumerate(samples) if i == 0 or s.new_segment] + [len(samples)]
+    rates = []
+    for a, b in zip(starts, starts[1:]):
+        segment = samples[a:b]
+        columns = {"time_s": np.array([s.time_s for s in segment]),
+                   **{c: np.array([s.values[c] for s in segment]) for c in segment[0].values}}
+        compensator = Compensator.load(bundle)
+        if startup:
+            compensator.use_startup(**startup)
+        rates.append(compensate_recording(compensator, Recording(columns, {}, "segment")).rate_dps)
+    return np.array([s.time_s for s in samples]), np.concatenate(rates)
+
+
+def assert_same_rows(a: pd.DataFrame, b: pd.DataFrame) -> None:
+    assert list(a.columns) == list(b.columns) and len(a) == len(b) > 0
+    exact = [c for c in a.columns if c not in GYRO_COLUMNS]
+    pd.testing.assert_frame_equal(a[exact], b[exact])
+    np.testing.assert_allclose(a[list(GYRO_COLUMNS)].to_numpy(), b[list(GYRO_COLUMNS)].to_numpy(), rtol=0, atol=1e-9)
+
+
+@pytest.fixture(scope="module")
+def flood(paper_csv) -> tuple[dict, bytes]:
+    """2,000 samples with a replugged sensor (its clock starts again) after 1,200, as LP-BUS bytes with
+    garbage, corrupt, cut and NaN frames and out-of-range temperatures."""
+    recording = load_recording(paper_csv).slice(slice(0, 2000))
+    columns = {c: v.copy() for c, v in recording.columns.items()}
+    columns["time_s"][1200:] = columns["time_s"][1200:] - columns["time_s"][1200] + 0.5
+    faults = FaultPlan(garbage_rate=0.03, corrupt_rate=0.02, truncate_rate=0.02, nan_rate=0.01, out_of_range_every=41,
+                       out_of_range_temp_c=OUT_OF_RANGE_TEMP_C, seed=4)
+    return plan_stream(columns, "lpbus", faults).log, lpbus_bytes(columns, faults)
+
+
+def test_chunked_equals_per_sample_and_offline_with_faults_and_a_restart_inside_chunks(bundle, flood, tmp_path,
+                                                                                        monkeypatch):
+    log, data = flood
+    reads = reads_of(data, seed=1)
+    assert max(len(r) for r in reads) > 100 * 40  # reads of a hundred frames and more
+    chunked, rows = run(monkeypatch, bundle, tmp_path, reads, False, "chunked")
+    single, single_rows = run(monkeypatch, bundle, tmp_path, reads, True, "single")
+    assert chunked["clock_restarts"] == single["clock_restarts"] == 1
+    assert chunked["n_samples"] == len(log["good_indices"]) == len(rows)
+    assert chunked["faults"] == single["faults"] == log["expected_faults"]
+    assert chunked["n_out_of_range"] == single["n_out_of_range"] == len(log["out_of_range_indices"]) > 10
+    for key in ("allan", "allan_bins"):
+        assert chunked[key].keys() == single[key].keys()
+    np.testing.assert_allclose([v for axis in "xyz" for v in chunked["allan"][axis].values()],
+                               [v for axis in "xyz" for v in single["allan"][axis].values()], rtol=1e-9)
+    assert chunked["allan_bins"] == single["allan_bins"]
+    assert_same_rows(rows, single_rows)
+    time_s, rate_dps = offline_by_segment(bundle, reads)
+    np.testing.assert_array_equal(rows["time_s"].to_numpy(), time_s)
+    np.testing.assert_allclose(rows[list(GYRO_COLUMNS)].to_numpy(), rate_dps, rtol=0, atol=1e-9)
+
+
+def test_the_start_up_window_ends_inside_a_chunk_as_per_sample_and_offline(bundle, flood, tmp_path, monkeypatch):
+    _, data = flood
+    reads = reads_of(data, seed=2, max_bytes=20000)
+    startup = {"still_s": 120.0, "motion_dps": 5.0}
+    chunked, rows = run(monkeypatch, bundle, tmp_path, reads, False, "chunked", startup=startup)
+    single, single_rows = run(monkeypatch, bundle, tmp_path, reads, True, "single", startup=startup)
+    assert chunked["n_samples"] == single["n_samples"] > 1500
+    assert_same_rows(rows, single_rows)
+    _, rate_dps = offline_by_segment(bundle, reads, **startup)
+    np.testing.assert_allclose(rows[list(GYRO_COLUMNS)].to_numpy(), rate_dps, rtol=0, atol=1e-9)
+
+
+def test_motion_in_the_start_up_window_stops_after_the_windows_rows_as_per_sample(bundle, paper_csv, tmp_path,
+                                                                                   monkeypatch):
+    from gyronet.startup import StartupMotionError
+
+    recording = load_recording(paper_csv).slice(slice(0, 600))
+    columns = {c: v.copy() for c, v in recording.columns.items()}
+    columns["gyro_x_dps"][100:110] += 30.0  # a turn 50 s in
+    reads = reads_of(lpbus_bytes(columns, FaultPlan()), seed=3, max_bytes=20000)
+    written = {}
+    for per_sample in (False, True):
+        name = "single" if per_sample else "chunked"
+        with pytest.raises(StartupMotionError, match="motion in the start-up window"):
+            run(monkeypatch, bundle, tmp_path, reads, per_sample, name, startup={"still_s": 120.0})
+        written[name] = pd.read_csv(tmp_path / f"{name}.csv", comment="#")
+    assert len(written["chunked"]) == len(written["single"]) == 240  # the window's rows: 120 s at 2 Hz
+    assert_same_rows(written["chunked"], written["single"])
+
+
+def test_a_lone_frame_is_written_before_the_next_read(bundle, tmp_path, monkeypatch):
+    """No waiting for a chunk to fill: each read's rows are on disk when the reader is asked again."""
+    import gyronet.stream.live as live
+
+    path = tmp_path / "live.csv"
+    seen = []
+
+    def read_chunks(port, parser, *, should_stop, **kwargs):
+        for i in range(30):
+            seen.append(len(pd.read_csv(path, comment="#")))
+            yield [Sample(0.5 * i, {"temp_c": 25.0, "gyro_x_dps": 0.1, "gyro_y_dps": 0.2, "gyro_z_dps": 0.3})]
+
+    monkeypatch.setattr(live, "read_chunks", read_chunks)
+    live.run_stream(bundle, "sensor", path, allan_every_s=0, reconnect={"wait_at_start": True})
+    # the first 20 wait for the rate check (RATE_PROBE_SAMPLES), then every sample is out before the next read
+    assert seen == [0] * 20 + list(range(20, 30))
+
+
+def test_read_chunks_brings_what_waits_in_one_chunk_and_a_lone_frame_at_once():
+    import serial
+
+    from gyronet.stream.reader import read_chunks
+
+    frame = [lpbus_frame(1, 9, bytes(40 - i) + bytes([i])) for i in range(8)]
+    port = serial.serial_for_url("loop://", timeout=0.05)
+    port.write(b"".join(frame[:5]))
+    got = []
+    chunks = read_chunks(port, LpBusParser(), should_stop=lambda: len(got) >= 2)
+    got.append(next(chunks))
+    port.write(frame[5])
+    got.append(next(chunks))
+    chunks.close()
+    assert [len(chunk) for chunk in got] == [5, 1]
+
+
+def test_a_chunk_cut_by_a_full_disk_keeps_its_complete_lines(bundle, tmp_path, monkeypatch):
+    import errno
+    import os
+
+    import gyronet.stream.output as output_module
+    from gyronet.compensator import Compensated
+    from gyronet.stream.output import LiveWriter, OutputError
+
+    writer = LiveWriter(tmp_path / "live.csv", bundle)
+    n = 10
+    out = Compensated(np.full((n, 3), 0.125), np.zeros((n, 3)), np.zeros(n, dtype=bool), np.zeros(n, dtype=bool))
+    line_bytes = len("0.0,0.125,0.125,0.125,25.0,0,0\n")
+    real_write, room = os.write, [int(3.5 * line_bytes)]
+
+    def full_disk(fd, data):
+        if room[0] <= 0:
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+        done = real_write(fd, bytes(data[:room[0]]))
+        room[0] -= done
+        return done
+
+    monkeypatch.setattr(output_module.os, "write", full_disk)
+    with pytest.raises(OutputError, match="after 3 rows"):
+        writer.write(np.arange(n) * 0.0, np.full(n, 25.0), out)
+    monkeypatch.undo()
+    text = (tmp_path / "live.csv").read_text()
+    assert text.endswith("\n") and writer.n_rows == 3
+    assert text.splitlines()[2:] == ["0.0,0.125,0.125,0.125,25.0,0,0"] * 3
