@@ -4,8 +4,8 @@
    offsets: a per-run offset (``run_offset``) must earn its place like any other effect.
 2. Run-level candidates (:mod:`.runlevel`: ``run_offset`` and every column constant within a run
    that changes between runs, such as an orientation's ``acc_z_g``) are scored on held-out spans
-   within every run and tested against pseudo-runs (the runs relabelled at a point inside them,
-   never at a joint). Those whose per-run values span the same constants, given the runs'
+   within every run and tested against random deals of the runs' contiguous pieces to the runs
+   (never a shift across a joint). Those whose per-run values span the same constants, given the runs'
    design (two runs: every run-level candidate is the same single contrast), are equivalent;
    the simplest is kept (a per-run offset before an orientation column), the others are its
    ``alternatives``. A run-level effect is confirmed by its held-out score within the runs
@@ -14,7 +14,7 @@
    circular shifts within each run, on top of the model and one constant per run, and
    confirmed by retraining by run: the held-out runs' residual, each with its own constant
    removed, must drop by ``confirm_gain``.
-Both screens are one family-wise test at ``alpha``: each pseudo-run relabelling is paired with a
+Both screens are one family-wise test at ``alpha``: each deal of the runs' pieces is paired with a
 within-run shift and the best score of either is the null. A run-level effect that passes is taken
 first (the next round tests what is left). ``report.md`` ends with what the campaign's design
 cannot show and the cheapest run that would show it (:mod:`.advice`).
@@ -89,7 +89,7 @@ def _orientations(recordings: Sequence[Any]) -> list[str | None]:
 
 
 def _joint_null(runs: Any, within: Any, rng: np.random.Generator) -> None:
-    """One family-wise test over both screens: pair the pseudo-run relabellings with the within-run
+    """One family-wise test over both screens: pair the deals of the runs' pieces with the within-run
     shifts, take the best score of either at each pair, and recompute every p-value against it."""
     n = min(len(runs.null_max), len(within.null_max))
     joint = np.maximum(rng.permutation(runs.null_max)[:n], rng.permutation(within.null_max)[:n])
@@ -169,7 +169,8 @@ def diagnose_runs(paths: Sequence[str], data_options: Mapping[str, Any], make_mo
                                 + ", ".join(f"{a} {rs.rmse_after[best, AXES.index(a)]:.3g}" for a in axes)
                                 + f" deg/s, score {confirmed:.3g} >= {options.confirm_gain:g}; the best run-level "
                                 f"candidate did as well in {int((rs.null_max >= rs.score[best]).sum())} of "
-                                f"{len(rs.null_max)} pseudo-run relabellings inside the runs (p = {rs.p_value[best]:.3g}"
+                                f"{len(rs.null_max)} random deals of the runs' pieces, each with a shift within the runs (p = "
+                                f"{rs.p_value[best]:.3g}"
                                 f" <= {alpha:g}).")
                     kept = ({"kind": "run_offset" if not extra else "column", "source": cand.spec["source"],
                              "params": {k: v for k, v in cand.spec.items() if k not in ("kind", "source")},
@@ -263,7 +264,7 @@ def _write_report(out_dir: Path, diagnosis: Mapping[str, Any], details: Mapping[
     for r, round_ in enumerate(details["rounds"], start=1):
         if "run_level" in round_:
             lines += [f"Round {r}, run-level: the {1 - details['options']['alpha']:.0%} quantile of the best "
-                      f"score under {round_['run_n_shifts']} pseudo-run relabellings is "
+                      f"score under {round_['run_n_shifts']} deals of the runs' pieces (each with a within-run shift) is "
                       f"{round_['run_null_quantile']:.3g}.", "", "| candidate | score | p |", "| --- | --- | --- |"]
             lines += [f"| `{c['name']}` | {c['score']:.3g} | {c['p_value']:.3g} |" for c in round_["run_level"][:6]]
             lines.append("")
