@@ -13,7 +13,7 @@
 3. Within-run candidates (the single record's: lags, columns, warm-up, ...) are screened against
    circular shifts within each run, on top of the model and one constant per run, and
    confirmed by retraining by run: the held-out runs' residual, each with its own constant
-   removed, must drop by ``confirm_gain``.
+   removed, must drop by ``confirm_gain``, and as it is must not grow.
 Both screens are one family-wise test at ``alpha``: each deal of the runs' pieces is paired with a
 within-run shift and the best score of either is the null. A run-level effect that passes is taken
 first (the next round tests what is left). ``report.md`` ends with what the campaign's design
@@ -61,6 +61,13 @@ class RunStage:
     def demeaned(self) -> np.ndarray:
         """(3,) held-out residual of the folds, each held-out run's own constant removed (mean over folds)."""
         return np.mean([f["val/rmse_demeaned_dps"] for f in self.folds], axis=0)
+
+    def harmless_over(self, before: "RunStage") -> bool:
+        """True when the held-out runs' residual as it is (no constant removed) is no worse than
+        ``before``'s: an input whose level differs between runs can help the demeaned residual
+        while adding an offset that a deployment without a start-up window would keep."""
+        old, new = (np.array(list(s.val_rmse().values())) for s in (before, self))
+        return bool((new**2).sum() <= (old**2).sum())
 
     def gain_over(self, before: "RunStage") -> float:
         old, new = before.demeaned(), self.demeaned()
@@ -189,8 +196,10 @@ def diagnose_runs(paths: Sequence[str], data_options: Mapping[str, Any], make_mo
                            if len(passing) else []):
                 trained = train([*stage.data.features, choice.spec], offsets)
                 confirmed = trained.gain_over(stage)
-                round_["tried"].append({"spec": choice.spec, "score": choice.score, "confirm": confirmed})
-                if confirmed >= options.confirm_gain:
+                harmless = trained.harmless_over(stage)
+                round_["tried"].append({"spec": choice.spec, "score": choice.score, "confirm": confirmed,
+                                        "harmless": harmless})
+                if confirmed >= options.confirm_gain and harmless:
                     axes = result.axes(choice.index, alpha)
                     kept = ({"kind": effect_kind(choice.spec), "source": effect_source(choice.spec),
                              "params": effect_params(choice.spec), "axes": axes,
@@ -274,8 +283,9 @@ def _write_report(out_dir: Path, diagnosis: Mapping[str, Any], details: Mapping[
                       "| candidate | score | p |", "| --- | --- | --- |"]
             lines += [f"| `{c['name']}` | {c['score']:.3g} | {c['p_value']:.3g} |" for c in round_["candidates"][:6]]
             lines.append("")
-        lines += [f"- tried `{t['spec']}`: score {t['score']:.3g}, confirmation {t['confirm']:.3g}."
-                  for t in round_["tried"]]
+        lines += [f"- tried `{t['spec']}`: score {t['score']:.3g}, confirmation {t['confirm']:.3g}"
+                  + ("" if t.get("harmless", True) else ", but the held-out runs' residual as it is got worse")
+                  + "." for t in round_["tried"]]
         if round_["tried"]:
             lines.append("")
     lines += advice_lines(advice)
