@@ -7,8 +7,8 @@ an advantage that the refinement itself produced, so refinement comes only after
 
 **Equivalent explanations.** Families whose best score is within the screen's own noise of the
 best family's (``tie_z`` standard errors of the paired per-fold difference,
-``ScreenResult.tie_noise``, or the median score of the best candidate under the circular shifts,
-whichever is larger) explain the held-out residual equally well. Of such a group the
+``ScreenResult.tie_noise``, or less than 1 % of the best score) explain the held-out residual
+equally well. Of such a group the
 simplest is tried first (``complexity``: fewer free parameters, a measured column before a
 derived one, no lag before a lag) and the others are its ``alternatives``. Only then is the chosen
 parameter refined on a finer log grid (factors 2, sqrt 2, ... 2^(1/16)) by the same held-out
@@ -103,25 +103,26 @@ def alternative(spec: Mapping[str, Any], score: float) -> dict[str, Any]:
             "score": float(score)}
 
 
-def tie_groups(result: ScreenResult, passing: np.ndarray, tie_z: float = 1.0) -> list[list[int]]:
+def tie_groups(result: ScreenResult, passing: np.ndarray, tie_z: float = 1.0, rel_tol: float = 0.01) -> list[list[int]]:
     """The passing families' best grid points, grouped by equivalence, best group first; each
     group sorted simplest first.
 
-    A group holds the families whose score is below its best's by no more than the screen's noise:
-    ``tie_z`` standard errors of the paired per-fold difference, or what the best candidate scores
-    by chance (the median of the circular-shift null), whichever is larger. Two near-copies of one
-    signal differ consistently by a hair, so the paired error alone would call them apart.
+    A group holds the families whose score is below its best's by no more than the screen's noise,
+    ``tie_z`` standard errors of the paired per-fold difference, or by less than ``rel_tol`` of the
+    best score: two near-copies of one signal differ consistently by a hair, which the paired error
+    alone would call apart. (The median best score under the circular shifts, what chance alone
+    gives, was tried as the floor instead: on slow residuals it reached 10 % of the best and made
+    hours-since-start the equal of a 5000 s warm-up that it is not on another history.)
     """
     best_of_family: dict[tuple, int] = {}
     for i in passing:  # best score first
         best_of_family.setdefault(family(result.specs[i]), int(i))
     left = list(best_of_family.values())
-    # what the best of all candidates scores by chance (the median over the circular shifts)
-    chance = float(np.median(result.null_max)) if len(result.null_max) else 0.0
     groups = []
     while left:
         head, rest = left[0], np.array(left[1:], dtype=int)
-        within = np.maximum(tie_z * result.tie_noise(head, rest), chance) if len(rest) else np.zeros(0)
+        noise = result.tie_noise(head, rest) if len(rest) else np.zeros(0)
+        within = np.maximum(tie_z * noise, rel_tol * result.score[head])
         tied = [int(j) for j, w in zip(rest, within) if result.score[head] - result.score[j] <= w]
         group = sorted([head, *tied], key=lambda j: (complexity(result.specs[j]), -result.score[j]))
         groups.append(group)
