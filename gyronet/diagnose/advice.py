@@ -42,7 +42,8 @@ def _direction(time_s: np.ndarray, temp_c: np.ndarray, block_s: float = 300.0, m
 
 
 def record_advice(time_s: np.ndarray, temp_c: np.ndarray, fs_hz: float, columns: Sequence[str],
-                  rate_tau_s: float = 5.0, still_s: float = 600.0, min_span_c: float = 30.0) -> list[Advice]:
+                  rate_tau_s: float = 5.0, still_s: float = 600.0, min_span_c: float = 30.0,
+                  range_c: tuple[float, float] | None = None) -> list[Advice]:
     """Advice from one record's samples: its temperature history, rate and columns.
 
     Parameters
@@ -59,13 +60,16 @@ def record_advice(time_s: np.ndarray, temp_c: np.ndarray, fs_hz: float, columns:
         The start-up window a deployed compensator averages (``startup.still_s``).
     min_span_c
         A temperature span below this is called narrow.
+    range_c
+        The range trained on, when it is not this record's (a campaign: the union of its runs).
     """
     out = []
-    span_c = float(np.ptp(temp_c))
-    if span_c < min_span_c:
-        out.append(Advice("wider", f"the drift outside {temp_c.min():.1f} to {temp_c.max():.1f} degC ({span_c:.1f} "
+    low_c, high_c = (float(temp_c.min()), float(temp_c.max())) if range_c is None else range_c
+    if high_c - low_c < min_span_c:
+        out.append(Advice("wider", f"the drift outside {low_c:.1f} to {high_c:.1f} degC ({high_c - low_c:.1f} "
                                    "degC): a model holds its edge value beyond the trained range",
                           f"a run over a wider range (at least {min_span_c:g} degC, the temperatures of use)"))
+    span_c = float(np.ptp(temp_c))
     rising = _direction(time_s, temp_c)
     if rising < 0.05 or rising > 0.95:
         seen, missing = ("rises", "cooling") if rising > 0.5 else ("falls", "heating")

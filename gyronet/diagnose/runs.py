@@ -232,7 +232,9 @@ def diagnose_runs(paths: Sequence[str], data_options: Mapping[str, Any], make_mo
     (out_dir / "diagnosis.json").write_text(json.dumps(_jsonable(diagnosis), indent=2) + "\n")
     orientations = _orientations(recordings)
     advice = runs_advice(orientations)
-    per_run = [{(a.cost, a.record): a for a in record_advice(r.time_s, r.temp_c, r.fs_hz, common)} for r in recordings]
+    union_c = (min(float(r.temp_c.min()) for r in recordings), max(float(r.temp_c.max()) for r in recordings))
+    per_run = [{(a.cost, a.record): a for a in record_advice(r.time_s, r.temp_c, r.fs_hz, common, range_c=union_c)}
+               for r in recordings]
     advice += [a for key, a in per_run[0].items() if all(key in other for other in per_run[1:])]
     details = {"options": options, "runs": [{"name": r.name, "orientation": o} for r, o in
                                             zip(stage.data.runs, orientations)],
