@@ -157,8 +157,9 @@ def _diagnose_runs(paths, out: Path) -> dict:
     from gyronet.diagnose import diagnose
 
     model = lambda n: RBFNet(n, 3, 12, rbf_inputs=[0], linear=True, temp_degree=3, clamp=True)  # noqa: E731
+    # 99 shifts and deals (p down to 0.01 = alpha), as the slow tests of test_diagnose.py
     return diagnose({"paths": paths, "rate_tau_s": 5.0}, model, out, train_cfg={"progress": False, "max_epochs": 800},
-                    plots=False)
+                    options={"n_shifts": 99}, plots=False)
 
 
 @pytest.mark.slow
