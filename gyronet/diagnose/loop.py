@@ -90,8 +90,8 @@ class DiagnoseOptions:
         Families tried per round (refined, retrained, confirmed), simplest of the best group first.
     tie_z
         Families whose best screen score is within this many standard errors (of the paired
-        per-fold difference) of the best family's are equivalent explanations: the simplest is
-        tried first, the others are listed as its ``alternatives``.
+        per-fold difference) of the best family's, or within 1 % of it, are equivalent
+        explanations: the simplest is tried first, the others are listed as its ``alternatives``.
     refine_passes
         Times the chosen parameter is searched again with the retrained network (each may retrain).
     seed

@@ -193,7 +193,7 @@ def alternatives_lines(effect: Mapping[str, Any]) -> list[str]:
 
 
 def write_report(out_dir: Path, diagnosis: Mapping[str, Any], details: Mapping[str, Any], rows: ScreenRows,
-                 stages: Sequence[Any], plots: bool = True, extra_advice: Sequence[Any] = ()) -> Path:
+                 stages: Sequence[Any], plots: bool = True) -> Path:
     """Write ``out_dir/report.md`` (and its PNG figures when ``plots``), ending with what to record next."""
     options = details["options"]
     record = len(rows.recordings) - 1  # the separate validation recording, when there is one
@@ -270,12 +270,12 @@ def write_report(out_dir: Path, diagnosis: Mapping[str, Any], details: Mapping[s
                      "there the network is clamped and any candidate that extrapolates would win for the wrong "
                      "reason, and so do the networks' held-out numbers above.")
     lines.append("")
-    from gyronet.diagnose.advice import advice_lines, alternatives_advice, record_advice
+    from gyronet.diagnose.advice import advice_lines, alternatives_advice, record_advice, runs_advice
     from gyronet.diagnose.candidates import source_columns
 
     rate_tau_s = next((float(f.get("tau_s", 5.0)) for f in stages[0].data.features if f["kind"] == "rate"), 5.0)
     advice = record_advice(training.time_s, training.temp_c, training.fs_hz, source_columns(training), rate_tau_s)
-    advice += alternatives_advice(diagnosis["effects"]) + list(extra_advice)
+    advice += alternatives_advice(diagnosis["effects"]) + ([] if record else runs_advice([None]))
     if plots:
         figures = _figures(out_dir, rows, stages, record)
         lines += ["## Figures", "", "Baseline and final residual, 60 s means"

@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import json
 import logging
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any, Callable, Mapping, Sequence
 
@@ -236,14 +236,11 @@ def diagnose_runs(paths: Sequence[str], data_options: Mapping[str, Any], make_mo
     per_run = [{(a.cost, a.record): a for a in record_advice(r.time_s, r.temp_c, r.fs_hz, common, range_c=union_c)}
                for r in recordings]
     advice += [a for key, a in per_run[0].items() if all(key in other for other in per_run[1:])]
-    details = {"options": options, "runs": [{"name": r.name, "orientation": o} for r, o in
-                                            zip(stage.data.runs, orientations)],
+    details = {"options": asdict(options), "runs": [{"name": r.name, "orientation": o} for r, o in
+                                                    zip(stage.data.runs, orientations)],
                "rounds": rounds, "stages": [{"inputs": s.data.feature_names, "run_offsets": s.data.run_offsets,
                                              "metrics": s.metrics, "folds": s.folds} for s in stages],
                "next": [a.to_dict() for a in advice]}
-    from dataclasses import asdict
-
-    details["options"] = asdict(options)
     (out_dir / "diagnosis_details.json").write_text(json.dumps(_jsonable(details), indent=2) + "\n")
     _write_report(out_dir, diagnosis, details, orientations, advice)
     return diagnosis
