@@ -385,9 +385,7 @@ def test_an_undeclared_effect_is_found_and_halves_the_error_elsewhere(tmp_path, 
                                                                       check_profile, kind, source):
     train = _write(tmp_path / "train.csv", _simulate(train_profile, 1, effect))
     check = _write(tmp_path / "check.csv", _simulate(check_profile, 2, effect))
-    # one effect each: what is checked is the first one and the bundle it makes (the two-effect test
-    # and the clean records check that the loop goes on and stops)
-    diagnosis = _slow_diagnose(train, tmp_path / "out", max_effects=1)
+    diagnosis = _slow_diagnose(train, tmp_path / "out")
     _check_shape(diagnosis)
     assert diagnosis["effects"], f"{name}: nothing found"
     first = diagnosis["effects"][0]
@@ -443,7 +441,7 @@ def test_a_power_of_temperature_needs_capacity_not_a_new_input(tmp_path):
     error, _ = _drift_error(tmp_path / "default" / "baseline" / "compensator", check)
     assert error < 0.01
     # a network with two Gaussians cannot follow that shape: the diagnosis asks for a power of T
-    small = _slow_diagnose(train, tmp_path / "small", n_centers=2, max_effects=1)
+    small = _slow_diagnose(train, tmp_path / "small", n_centers=2)
     assert small["effects"] and small["effects"][0]["kind"] == "polynomial"
     assert small["effects"][0]["source"] == "temp_c"
 
