@@ -347,9 +347,9 @@ def test_the_real_psim_recording_reports_what_it_can(tmp_path):
 # ---------------------------------------------------------------------------------------- slow tests
 
 def _slow_diagnose(path: Path, out: Path, **options) -> dict:
-    """The diagnosis as the slow tests run it: 99 shifts (p down to 0.01 = alpha, as 199 allow 0.005)
-    and at most 1200 epochs a network (they stop early at 400-1400 anyway), to keep the file's CPU time
-    within its share of CI."""
+    """The diagnosis as the slow tests run it: 99 shifts (p down to 0.01 = alpha; 199 allow 0.005)
+    and at most 1200 epochs a network (the default is 3000; early stopping ends many fits sooner),
+    to keep the file's CPU time within its share of CI."""
     return _diagnose(path, out, **{"n_shifts": 99, "train_cfg": {"max_epochs": 1200}, **options})
 
 
