@@ -137,7 +137,6 @@ def diagnose_runs(paths: Sequence[str], data_options: Mapping[str, Any], make_mo
     shortest = min(recordings, key=lambda r: np.ptp(r.time_s))
     longest_s = options.candidates.max_tau_fraction * float(np.ptp(shortest.time_s))
     pool = candidate_specs(shortest, options.candidates, exclude=stage.data.features, columns=common)
-    pool = [s for s in pool if s["kind"] != "time" or s.get("tau_s")]  # hours since start: the same in every run
     values = rows.features(pool)
     dummies = np.eye(n_runs)[rows.recording][:, 1:]
     effects, rounds, offsets, alpha = [], [], False, options.alpha
