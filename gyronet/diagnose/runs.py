@@ -46,6 +46,11 @@ from gyronet.pipeline import _jsonable, _meta
 log = logging.getLogger(__name__)
 
 
+NOTE = ("several runs: trained and scored by leave-one-run-out (`runs`: the final network's folds); run-level "
+        "effects (run_offset, orientation) screened against deals of the runs' pieces, within-run effects against "
+        "shifts within each run (issue #12)")
+
+
 @dataclass
 class RunStage:
     """A network trained by leave-one-run-out, its data and its held-out figures."""
@@ -226,7 +231,8 @@ def diagnose_runs(paths: Sequence[str], data_options: Mapping[str, Any], make_mo
     save_bundle(stage.model, _meta(stage.model, stage.data), out_dir / "compensator")
     diagnosis = {"baseline": {"inputs": stages[0].data.feature_names, "val_rmse_dps": stages[0].val_rmse()},
                  "effects": effects,
-                 "final": {"inputs": stage.data.feature_names, "val_rmse_dps": stage.val_rmse()}}
+                 "final": {"inputs": stage.data.feature_names, "val_rmse_dps": stage.val_rmse()},
+                 "runs": stage.folds, "note": NOTE}
     out_dir.mkdir(parents=True, exist_ok=True)
     (out_dir / "diagnosis.json").write_text(json.dumps(_jsonable(diagnosis), indent=2) + "\n")
     orientations = _orientations(recordings)
