@@ -1,4 +1,4 @@
-"""Close the loop: python scripts/diagnose.py data.path=F.csv hydra.run.dir=D [data.val_path=G.csv].
+"""Close the loop: python scripts/diagnose.py data.path=F.csv hydra.run.dir=D [data.val_path=G.csv], or 'data.paths=[A.csv,B.csv]'.
 
 Writes D/diagnosis.json, D/baseline/compensator/, D/compensator/ and D/report.md; see conf/diagnose.yaml.
 """

@@ -5,7 +5,10 @@ against its held-out residual with a family-wise permutation test, adds those th
 the retrained network confirms on held-out data, and repeats (:mod:`.loop`, :mod:`.choose`). The
 candidates (:mod:`.candidates`) are built from whatever the recording holds, so a new channel in
 a new recording needs no new code; the rows they are scored on are in :mod:`.rows`, the test in
-:mod:`.screen`, the report and its figures in :mod:`.report`.
+:mod:`.screen`, the report and its figures in :mod:`.report`. Equivalent explanations are grouped
+in :mod:`.choose` (the simplest kept, the others its ``alternatives``); several runs
+(``data.paths``) go through :mod:`.runs`, with run-level candidates (``run_offset``, orientation)
+and their null in :mod:`.runlevel`; what to record next is :mod:`.advice`.
 """
 from gyronet.diagnose.candidates import CandidateGrid, candidate_specs, effect_kind, filter_tau
 from gyronet.diagnose.loop import DiagnoseOptions, diagnose

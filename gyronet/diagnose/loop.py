@@ -87,7 +87,11 @@ class DiagnoseOptions:
         Ridge penalty of the screen's refits (relative, on standardised regressors); None picks it
         by cross-validation of the model's own regressors, each round.
     refine_top
-        Families tried per round (refined, retrained, confirmed), best screen score first.
+        Families tried per round (refined, retrained, confirmed), simplest of the best group first.
+    tie_z
+        Families whose best screen score is within this many standard errors (of the paired
+        per-fold difference) of the best family's, or within 1 % of it, are equivalent
+        explanations: the simplest is tried first, the others are listed as its ``alternatives``.
     refine_passes
         Times the chosen parameter is searched again with the retrained network (each may retrain).
     seed
@@ -106,6 +110,7 @@ class DiagnoseOptions:
     n_folds: int = 5
     ridge: float | None = None
     refine_top: int = 3
+    tie_z: float = 1.0
     refine_passes: int = 2
     seed: int = 0
     candidates: CandidateGrid = field(default_factory=CandidateGrid)
@@ -125,6 +130,7 @@ class DiagnoseOptions:
                                ("span_s", self.span_s > 0.0, "positive"),
                                ("ridge", self.ridge is None or self.ridge >= 0.0, "null or at least 0"),
                                ("refine_top", self.refine_top >= 1, "at least 1"),
+                               ("tie_z", self.tie_z >= 0.0, "at least 0"),
                                ("refine_passes", self.refine_passes >= 0, "at least 0")):
             if not ok:
                 raise GyronetError(f"diagnose.{name} must be {must}, got {getattr(self, name)}")
@@ -241,7 +247,7 @@ def _attempt(choice: Choice, stage: Stage, train: _Trainer, rows: ScreenRows, ba
             break
         log.info("refined %s to %s", feature_name(choice.spec), feature_name(better.spec))
         gain, score, rmse_after = score_specs(rows, basis, [better.spec], ridge)
-        choice = Choice(better.spec, choice.index, gain[0], float(score[0]), rmse_after[0])
+        choice = Choice(better.spec, choice.index, gain[0], float(score[0]), rmse_after[0], choice.alternatives)
         trained = train([*inputs, choice.spec])
     return choice, trained
 
@@ -278,16 +284,17 @@ def diagnose(data_options: Mapping[str, Any], make_model: Callable[[int], torch.
     paths = list(data_options.get("paths") or [])
     runs_options = {k: data_options[k] for k in ("run_offsets", "val_startup_s") if k in data_options}
     data_options = {k: v for k, v in data_options.items() if k not in ("paths", "run_offsets", "val_startup_s")}
+    if not isinstance(options, DiagnoseOptions):
+        options = DiagnoseOptions(**dict(options or {}))
     if len(paths) > 1 or (paths and data_options.get("path")):
         from gyronet.diagnose.runs import diagnose_runs
 
-        return diagnose_runs(paths, {**data_options, **runs_options}, make_model, out_dir, optim, train_cfg, seed)
+        return diagnose_runs(paths, {**data_options, **runs_options}, make_model, out_dir, optim, train_cfg, seed,
+                             options)
     if paths:
         data_options["path"] = paths[0]
     if not data_options.get("path"):
         raise GyronetError("no training data: give data.path=F.csv or data.paths=[A.csv,B.csv]")
-    if not isinstance(options, DiagnoseOptions):
-        options = DiagnoseOptions(**dict(options or {}))
     if "features" in data_options:
         check_feature_specs(data_options["features"], "data.features")
         if not data_options["features"]:
@@ -344,7 +351,8 @@ def diagnose(data_options: Mapping[str, Any], make_model: Callable[[int], torch.
         log.info("round %d: best %s score %.3g p %.3g; %d pass", len(rounds), round_["candidates"][0]["name"],
                  round_["candidates"][0]["score"], round_["candidates"][0]["p_value"], len(passing))
         kept = None
-        for choice in ranked(result, passing, rows, basis, options.refine_top, longest_s) if len(passing) else []:
+        for choice in (ranked(result, passing, rows, basis, options.refine_top, longest_s, options.tie_z)
+                       if len(passing) else []):
             choice, trained = _attempt(choice, stage, train, rows, basis, result.ridge, options, longest_s)
             confirmed = train.cross_validate(trained).gain_over(stage)
             round_["tried"].append({"spec": choice.spec, "score": choice.score, "confirm": confirmed})
@@ -363,6 +371,7 @@ def diagnose(data_options: Mapping[str, Any], make_model: Callable[[int], torch.
             "val_rmse_before_dps": stage.val_rmse(), "val_rmse_after_dps": trained.val_rmse(),
             "evidence": evidence(choice.spec, choice.score, choice.rmse_after, choice.index, result, axes,
                                  options.alpha, options.min_gain, confirmed, options.confirm_gain),
+            "alternatives": choice.alternatives,
         })
         log.info("effect %d: %s", len(effects), effects[-1]["evidence"])
         stage = trained

@@ -181,9 +181,20 @@ def _rmse_row(label: str, values: Mapping[str, float]) -> str:
     return f"| {label} | " + " | ".join(f"{values[a]:.4g}" for a in AXES) + " |"
 
 
+def alternatives_lines(effect: Mapping[str, Any]) -> list[str]:
+    """The sentence that names an effect's equivalent explanations, if it has any."""
+    alternatives = effect.get("alternatives") or []
+    if not alternatives:
+        return []
+    names = "; ".join(f"`{a['kind']}` of `{a['source']}` {a['params']} (score {a['score']:.3g})" for a in alternatives)
+    return [f"Equally good within the screen's own noise: {names}. This record cannot tell them apart; the "
+            f"effect kept is the simplest of them (fewer free parameters, a measured column before a derived one, "
+            f"no lag before a lag).", ""]
+
+
 def write_report(out_dir: Path, diagnosis: Mapping[str, Any], details: Mapping[str, Any], rows: ScreenRows,
                  stages: Sequence[Any], plots: bool = True) -> Path:
-    """Write ``out_dir/report.md`` (and its PNG figures when ``plots``)."""
+    """Write ``out_dir/report.md`` (and its PNG figures when ``plots``), ending with what to record next."""
     options = details["options"]
     record = len(rows.recordings) - 1  # the separate validation recording, when there is one
     training = rows.recordings[0]
@@ -217,6 +228,7 @@ def write_report(out_dir: Path, diagnosis: Mapping[str, Any], details: Mapping[s
                   "| network's held-out 60 s residual | " + " | ".join(AXES) + " |", "| --- | --- | --- | --- |",
                   _rmse_row("before", effect["val_rmse_before_dps"]),
                   _rmse_row("after", effect["val_rmse_after_dps"]), ""]
+        lines += alternatives_lines(effect)
     lines += ["Final inputs: " + ", ".join(f"`{n}`" for n in diagnosis["final"]["inputs"]) + ".", ""]
     lines += ["## How it was tested", "",
               f"Every candidate (temperature through other lags, heating versus cooling, powers of T, every "
@@ -258,6 +270,12 @@ def write_report(out_dir: Path, diagnosis: Mapping[str, Any], details: Mapping[s
                      "there the network is clamped and any candidate that extrapolates would win for the wrong "
                      "reason, and so do the networks' held-out numbers above.")
     lines.append("")
+    from gyronet.diagnose.advice import advice_lines, alternatives_advice, record_advice, runs_advice
+    from gyronet.diagnose.candidates import source_columns
+
+    rate_tau_s = next((float(f.get("tau_s", 5.0)) for f in stages[0].data.features if f["kind"] == "rate"), 5.0)
+    advice = record_advice(training.time_s, training.temp_c, training.fs_hz, source_columns(training), rate_tau_s)
+    advice += alternatives_advice(diagnosis["effects"]) + ([] if record else runs_advice([None]))
     if plots:
         figures = _figures(out_dir, rows, stages, record)
         lines += ["## Figures", "", "Baseline and final residual, 60 s means"
@@ -265,6 +283,7 @@ def write_report(out_dir: Path, diagnosis: Mapping[str, Any], details: Mapping[s
                   ""]
         lines += [f"![{name}]({name})" for name in figures]
         lines.append("")
+    lines += advice_lines(advice)
     path = out_dir / "report.md"
     path.write_text("\n".join(lines))
     return path

@@ -70,6 +70,27 @@ class ScreenRows:
         return cls(list(recordings), float(fs_hz), float(block_s), np.concatenate(times),
                    np.concatenate(ids), np.concatenate(folds), np.concatenate(targets))
 
+    @classmethod
+    def build_runs(cls, recordings: Sequence[Recording], fs_hz: float, block_s: float = 60.0, span_s: float = 600.0,
+                   n_folds: int = 5, static_rate: Sequence[float] | None = None) -> "ScreenRows":
+        """Rows of a campaign's runs: each run its own ``recording`` index (shifts stay within it) and
+        K folds of interleaved ``span_s`` spans within every run, so every fold holds part of every run."""
+        one = [cls.build([rec], fs_hz, block_s, max(2 * n_folds, int(round(np.ptp(rec.time_s) / span_s))), n_folds,
+                         static_rate) for rec in recordings]
+        return cls(list(recordings), float(fs_hz), float(block_s), np.concatenate([r.time_s for r in one]),
+                   np.concatenate([np.full(len(r), i) for i, r in enumerate(one)]),
+                   np.concatenate([r.fold for r in one]), np.concatenate([r.target for r in one]))
+
+    @property
+    def position(self) -> np.ndarray:
+        """(n,) each row's place within its recording: 0 at its first block, 1 at its last."""
+        out = np.zeros(len(self))
+        for r in np.unique(self.recording):
+            rows = self.recording == r
+            t = self.time_s[rows]
+            out[rows] = (t - t.min()) / max(float(np.ptp(t)), 1e-12)
+        return out
+
     def __len__(self) -> int:
         return len(self.time_s)
 

@@ -98,9 +98,15 @@ def cv_sse(folds: Sequence[_Fold], target: np.ndarray, candidates: np.ndarray) -
 
     ``candidates`` (n, m) are standardised columns; each is added alone to the basis.
     """
-    sse0 = np.zeros(target.shape[1])
-    sse1 = np.zeros((candidates.shape[1], target.shape[1]))
-    for fold in folds:
+    sse0, sse1 = cv_sse_by_fold(folds, target, candidates)
+    return sse0.sum(0), sse1.sum(0)
+
+
+def cv_sse_by_fold(folds: Sequence[_Fold], target: np.ndarray, candidates: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``cv_sse`` fold by fold: (k, 3) without and (k, m, 3) with each candidate."""
+    sse0 = np.zeros((len(folds), target.shape[1]))
+    sse1 = np.zeros((len(folds), candidates.shape[1], target.shape[1]))
+    for k, fold in enumerate(folds):
         # Frisch-Waugh-Lovell: residualise target and candidates on the basis (fitted on the
         # training rows), then one coefficient per candidate and axis from the training rows
         y_res, c_res = _fwl(fold, target), _fwl(fold, candidates)
@@ -109,10 +115,10 @@ def cv_sse(folds: Sequence[_Fold], target: np.ndarray, candidates: np.ndarray) -
         usable = energy > 1e-9 * tr.sum()
         gamma = np.where(usable[:, None], (c_res[tr].T @ y_res[tr]) / np.where(usable, energy, 1.0)[:, None], 0.0)
         base = _dots(y_res[te], y_res[te])
-        sse0 += base
+        sse0[k] = base
         # sum (y - gamma c)^2 = sum y^2 - 2 gamma c.y + gamma^2 c.c
-        sse1 += (base[None, :] - 2 * gamma * (c_res[te].T @ y_res[te])
-                 + gamma**2 * _dots(c_res[te], c_res[te])[:, None])
+        sse1[k] = (base[None, :] - 2 * gamma * (c_res[te].T @ y_res[te])
+                   + gamma**2 * _dots(c_res[te], c_res[te])[:, None])
     return sse0, sse1
 
 
@@ -175,6 +181,16 @@ class ScreenResult:
     n_rows: int
     n_folds: int
     ridge: float
+    fold_score: np.ndarray | None = None  # (m, k): the score on each held-out fold alone
+
+    def tie_noise(self, best: int, other: np.ndarray) -> np.ndarray:
+        """The screen's own noise on ``score[best] - score[other]``: the standard error of the paired
+        per-fold difference (0 with a single held-out set, where no such noise can be measured)."""
+        other = np.atleast_1d(other)
+        if self.fold_score is None or self.fold_score.shape[1] < 2:
+            return np.zeros(len(other))
+        diff = self.fold_score[best][None, :] - self.fold_score[other]
+        return diff.std(1, ddof=1) / np.sqrt(diff.shape[1])
 
     def passing(self, alpha: float, min_gain: float) -> np.ndarray:
         """Indices of candidates that pass, best score first."""
@@ -228,8 +244,10 @@ def screen(basis: np.ndarray, target: np.ndarray, candidates: np.ndarray, fold: 
     ridge = choose_ridge(basis, target, fold, free) if ridge is None else ridge
     folds = _folds(basis, fold, ridge, free)
     cand = np.nan_to_num(_standardise(candidates))
-    sse0, sse1 = cv_sse(folds, target, cand)
+    sse0_fold, sse1_fold = cv_sse_by_fold(folds, target, cand)
+    sse0, sse1 = sse0_fold.sum(0), sse1_fold.sum(0)
     gain, score = _scores(sse0, sse1)
+    fold_score = np.column_stack([_scores(a, b)[1] for a, b in zip(sse0_fold, sse1_fold)])
     fractions = shift_fractions(recording, n_shifts, np.random.default_rng(seed))
     null_max = np.empty(len(fractions))
     null_axis = np.empty((len(fractions), target.shape[1]))
@@ -244,7 +262,7 @@ def screen(basis: np.ndarray, target: np.ndarray, candidates: np.ndarray, fold: 
     n_test = int(sum(f.test.sum() for f in folds))
     return ScreenResult(list(names), [dict(s) for s in specs], gain, score, p_value, axis_p, null_max,
                         np.sqrt(sse0 / n_test), np.sqrt(np.clip(sse1, 0, None) / n_test),
-                        len(target), len(folds), ridge)
+                        len(target), len(folds), ridge, fold_score)
 
 
 def score_only(basis: np.ndarray, target: np.ndarray, candidates: np.ndarray, fold: np.ndarray,
