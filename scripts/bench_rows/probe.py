@@ -53,6 +53,7 @@ class StreamProbe:
     def __init__(self, capacity: int, per_sample: bool = False) -> None:
         import gyronet.stream.live as live
         from gyronet.compensator import Compensator
+        from gyronet.stream import lpbus_setup
         from gyronet.stream.events import Sample
 
         self.read_at: collections.deque[float] = collections.deque()
@@ -123,6 +124,7 @@ class StreamProbe:
             return original(*args, **kwargs)
 
         _wrap(live, "make_parser", make_parser)
+        _wrap(lpbus_setup.LpBusStart, "parser", make_parser)  # the LP-BUS parser once the set-up has run
         _wrap(Compensator, "process", timed("process"))
         _wrap(live.LiveWriter, "write", write)
         _wrap(live.LiveAllan, "add_many", timed("allan_add"))
