@@ -86,6 +86,12 @@ class LoadedBundle(NamedTuple):
     verified: bool  # False for a bundle written before checksums
 
 
+def load_unfrozen(bundle_dir: str | Path) -> torch.jit.ScriptModule:
+    """The bundle's TorchScript model with its buffers and parameters, for code generators (no checks:
+    call after :func:`read_bundle`, whose frozen model has folded them into constants)."""
+    return torch.jit.load(str(Path(bundle_dir) / MODEL_FILE), map_location="cpu")
+
+
 def load_bundle(bundle_dir: str | Path) -> tuple[torch.jit.ScriptModule, dict[str, Any], dict[str, Any] | None]:
     """Load ``model.pt``, ``meta.json`` and ``kalman.json`` (None when absent) from a bundle folder.
 

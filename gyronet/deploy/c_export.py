@@ -83,13 +83,6 @@ def _fill(template: str, values: dict[str, str]) -> str:
     return template
 
 
-def _load_module(bundle_dir: Path) -> Any:
-    """The TorchScript module with its buffers and parameters (``read_bundle`` freezes them away)."""
-    import torch
-
-    return torch.jit.load(str(bundle_dir / MODEL_FILE), map_location="cpu")
-
-
 def write_c(bundle_dir: Path, out_dir: Path) -> dict[str, Any]:
     """Write ``out_dir/gyronet_compensator.{h,c}`` for the bundle; a bundle it cannot export is one BundleError line.
 
@@ -97,6 +90,7 @@ def write_c(bundle_dir: Path, out_dir: Path) -> dict[str, Any]:
     ``aux_inputs``, ``kalman`` and ``kalman_transient_samples``.
     """
     from gyronet.compensator import Compensator
+    from gyronet.export import load_unfrozen
 
     bundle_dir, out_dir = Path(bundle_dir), Path(out_dir)
     compensator = Compensator.load(bundle_dir)  # every check a consumer makes, with its messages
@@ -105,7 +99,7 @@ def write_c(bundle_dir: Path, out_dir: Path) -> dict[str, Any]:
     aux = aux_inputs(specs, meta["input_columns"])
     feats = feature_code(specs, fs_hz, aux, f"{bundle_dir}/meta.json")
     model_path = f"{bundle_dir}/{MODEL_FILE}"
-    module = _load_module(bundle_dir)
+    module = load_unfrozen(bundle_dir)
     centre, scale = _probe_box(module, meta)
     model = model_code(module, scale, centre, model_path)
     kalman = no_kalman() if compensator.kalman is None else kalman_code(compensator.kalman.to_dict(),

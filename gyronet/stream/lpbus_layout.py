@@ -179,7 +179,7 @@ class LpBusLayout:
                 value = float(row[column])
                 value = math.radians(value) if spec.angular and self.radians else value
                 values.append(value if self.precision == 32 else _to_int16(value * scale, column))
-        return struct.pack(self._value_format, *values)
+        return self._struct.pack(*values)  # type: ignore[attr-defined]
 
     def decode(self, data: bytes) -> tuple[float, dict[str, float]]:
         """Time, s, and the other columns of one GET_SENSOR_DATA data block."""
