@@ -80,11 +80,20 @@ def score(recording: Recording, rate_dps: np.ndarray, score_from_s: float, floor
 
 
 def _train(make_model: Callable[[int], torch.nn.Module], paths: Sequence[str], run_offsets: bool,
-           train_cfg: Mapping[str, Any], seed: int) -> Compensator:
+           train_cfg: Mapping[str, Any], seed: int, data_options: Mapping[str, Any] | None = None) -> Compensator:
+    """Train on ``paths`` as ``train.py`` would; ``data_options`` are a model's own data settings.
+
+    ``in_sample`` (PX4's script, which holds nothing out): one training run is fitted whole and
+    validated on itself.
+    """
     from gyronet.pipeline import _meta
     from gyronet.train import fit
 
-    data = training_data(paths=list(paths), run_offsets=run_offsets, features=[dict(s) for s in PAPER_FEATURES])
+    options = {"features": PAPER_FEATURES, **dict(data_options or {})}
+    in_sample = options.pop("in_sample", False) and len(paths) == 1
+    options["features"] = [dict(s) for s in options["features"]]
+    data = training_data(paths=list(paths), run_offsets=run_offsets, **options,
+                         **({"val_path": str(paths[0])} if in_sample else {}))
     model = make_model(data.n_features)
     if getattr(data, "n_runs", 1) > 1:
         fit_by_run(model, data, seed=seed, **train_cfg)
@@ -95,8 +104,12 @@ def _train(make_model: Callable[[int], torch.nn.Module], paths: Sequence[str], r
 
 def held_out_table(paths: Sequence[str], models: Mapping[str, Callable[[int], torch.nn.Module] | None],
                    startup_s: float = 600.0, score_from_s: float = 600.0, run_offsets: bool = True,
-                   train_cfg: Mapping[str, Any] | None = None, seed: int = 0) -> dict[str, Any]:
+                   train_cfg: Mapping[str, Any] | None = None, seed: int = 0,
+                   data_options: Mapping[str, Mapping[str, Any]] | None = None) -> dict[str, Any]:
     """Hold each run out in turn; score every model (None: raw) with and without the start-up offset.
+
+    ``data_options`` maps a model's name to its own data settings (features, ``block_s``,
+    ``run_offsets``, ``in_sample``: see ``_train``), as a ``_global_`` model yaml sets them.
 
     Returns
     -------
@@ -119,14 +132,16 @@ def held_out_table(paths: Sequence[str], models: Mapping[str, Callable[[int], to
         box_c = (min(recordings[n].temp_c.min() for n in names if n != held),
                  max(recordings[n].temp_c.max() for n in names if n != held))
         for model_name, make_model in models.items():
-            variants = [False] + ([True] if run_offsets and len(others) >= 2 and make_model is not None else [])
+            options = dict((data_options or {}).get(model_name) or {})
+            offsets_allowed = options.pop("run_offsets", True) and make_model is not None
+            variants = [False] + ([True] if run_offsets and offsets_allowed and len(others) >= 2 else [])
             for with_offsets in variants:
                 label = model_name + (" + run offsets" if with_offsets else "")
                 if make_model is None:
                     compensator, oor = None, np.zeros(len(recording), bool)
                 else:
                     log.info("%s: training on %s", label, ", ".join(n for n in names if n != held))
-                    compensator = _train(make_model, others, with_offsets, train_cfg, seed)
+                    compensator = _train(make_model, others, with_offsets, train_cfg, seed, options)
                 rates = {}
                 for still_s in (0.0, startup_s):
                     if compensator is None:

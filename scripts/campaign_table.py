@@ -8,6 +8,7 @@ from hydra.utils import instantiate
 from omegaconf import DictConfig, OmegaConf
 
 from gyronet.atomic import atomic_output
+from gyronet.errors import GyronetError
 from gyronet.campaign import held_out_table, to_markdown
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # scripts/_cli.py, also when this file is run by path
@@ -19,14 +20,17 @@ MODEL_CONF = Path(__file__).resolve().parents[1] / "conf" / "model"
 
 @command("campaign", schemas={"train": "gyronet.train.fit", "seed": int}, required=("runs",))
 def main(cfg: DictConfig) -> None:
-    models = {}
+    models, data_options = {}, {}
     for name in cfg.models:
+        if name == "raw":
+            models[name] = None
+            continue
         variant = dict(cfg.variants.get(name) or {"model": name})
-        spec = None if name == "raw" else OmegaConf.merge(OmegaConf.load(MODEL_CONF / f"{variant.pop('model')}.yaml"),
-                                                         variant)
-        models[name] = None if spec is None else (lambda n_inputs, spec=spec: instantiate(spec, n_inputs=n_inputs))
+        spec, data_options[name] = _model_yaml(variant.pop("model"))
+        spec = OmegaConf.merge(spec, variant)
+        models[name] = lambda n_inputs, spec=spec: instantiate(spec, n_inputs=n_inputs)
     table = held_out_table(list(cfg.runs), models, float(cfg.startup_s), float(cfg.score_from_s), bool(cfg.run_offsets),
-                           OmegaConf.to_container(cfg.train), int(cfg.seed))
+                           OmegaConf.to_container(cfg.train), int(cfg.seed), data_options)
     markdown = to_markdown(table)
     output = Path(cfg.output)
     output.parent.mkdir(parents=True, exist_ok=True)
@@ -35,6 +39,22 @@ def main(cfg: DictConfig) -> None:
     with atomic_output(output.with_suffix(".json")) as tmp:
         tmp.write_text(json.dumps(table, indent=2) + "\n")
     log.info("held-out runs:\n%s", markdown)
+
+
+def _model_yaml(name: str) -> tuple[DictConfig, dict]:
+    """``conf/model/<name>.yaml``: the model's spec, and the data settings a ``_global_`` one (px4) makes."""
+    path = MODEL_CONF / f"{name}.yaml"
+    if not path.is_file():
+        known = ", ".join(sorted(p.stem for p in MODEL_CONF.glob("*.yaml")))
+        raise GyronetError(f"models: no conf/model/{name}.yaml (known: {known}, raw)")
+    conf = OmegaConf.load(path)
+    if "model" not in conf:  # a bare model spec, trained on conf/data's defaults
+        return conf, {}
+    data = conf.get("data") or {}
+    options = {k: OmegaConf.to_container(data[k]) if k == "features" else data[k]
+               for k in ("features", "block_s", "run_offsets") if k in data}
+    options["in_sample"] = "val_path" in data  # validated on its own recording (PX4 holds nothing out)
+    return conf.model, options
 
 
 if __name__ == "__main__":

@@ -1,12 +1,19 @@
 """The real-data table: floors, touched blocks, and each run held out in turn."""
 from pathlib import Path
 
+import sys
+
 import numpy as np
 import pytest
+from hydra.utils import instantiate
 
 from gyronet.baselines import TempPolynomial
 from gyronet.campaign import floor_dps, held_out_table, to_markdown, touched_blocks
 from gyronet.data import Recording
+from gyronet.errors import GyronetError
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts"))
+import campaign_table  # noqa: E402
 
 CATS = Path(__file__).resolve().parents[2] / "shared" / "data" / "real" / "cats-tag"
 RUNS = [CATS / "cats_run_z_down.csv.gz", CATS / "cats_run_y_down.csv.gz"]
@@ -38,9 +45,22 @@ def test_a_handled_block_is_found_from_the_accelerometer_or_the_gyro():
     assert np.flatnonzero(touched_blocks(rec)).tolist() == [50, 83]
 
 
+def test_a_px4_yaml_brings_its_own_data_settings_and_a_bare_one_none():
+    spec, options = campaign_table._model_yaml("px4")
+    assert spec._target_ == "gyronet.px4.Px4Cubic"
+    assert options == {"features": [{"kind": "temp"}], "block_s": 1e-6, "run_offsets": False, "in_sample": True}
+    spec, options = campaign_table._model_yaml("poly3")
+    assert "_target_" in spec and options == {}
+    with pytest.raises(GyronetError, match="no conf/model/cubic.yaml"):
+        campaign_table._model_yaml("cubic")
+
+
 @needs_cats
 def test_the_real_runs_floors_and_the_cubic_held_out_as_the_study_found():
-    table = held_out_table([str(p) for p in RUNS], {"raw": None, "poly3": lambda n: TempPolynomial(n)})
+    spec, px4_options = campaign_table._model_yaml("px4")
+    table = held_out_table([str(p) for p in RUNS], {"raw": None, "poly3": lambda n: TempPolynomial(n),
+                                                     "px4": lambda n: instantiate(spec, n_inputs=n)},
+                           data_options={"px4": px4_options})
     # PROVENANCE.md: 0.012 / 0.013 / 0.018 deg/s at 60 s in the cold dwell
     np.testing.assert_allclose(table["floor_dps"]["cats_run_z_down"], [0.012, 0.013, 0.018], rtol=0.1)
     assert table["touched_blocks"] == {"cats_run_z_down": 0, "cats_run_y_down": 0}
@@ -48,5 +68,8 @@ def test_the_real_runs_floors_and_the_cubic_held_out_as_the_study_found():
     # the study (/work/notes/campaign.md): y->z [7.83, 4.37, 1.33], z->y [6.17, 8.77, 3.24]
     np.testing.assert_allclose(cubic["cats_run_z_down"], [7.83, 4.37, 1.33], rtol=0.05)
     np.testing.assert_allclose(cubic["cats_run_y_down"], [6.17, 8.77, 3.24], rtol=0.05)
+    # PX4's script fitted on every sample of the other run (README "PX4 and ArduPilot"): worse than poly3
+    px4 = table["rows"]["px4 | startup 600 s"]["ratio"]
+    np.testing.assert_allclose(px4["cats_run_z_down"], [10.12, 4.43, 1.56], rtol=0.05)
     markdown = to_markdown(table)
     assert "| poly3 | startup 600 s |" in markdown and markdown.count("\n|") >= 5
