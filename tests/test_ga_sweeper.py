@@ -42,6 +42,8 @@ def main(cfg):
     os.makedirs(os.path.join(out, "compensator"), exist_ok=True)
     with open(os.path.join(out, "compensator", "params.txt"), "w") as f:
         f.write(f"{cfg.x} {cfg.y}")
+    with open(os.path.join(out, "compensator", "stage.txt"), "w") as f:
+        f.write(str(cfg.get("stage", "")))
     if cfg.fail == "always" or (cfg.fail == "positive_x" and cfg.x > 0):
         raise RuntimeError("boom")
     value = (cfg.x - 3) ** 2 + (cfg.y + 1) ** 2
@@ -169,7 +171,9 @@ def test_gyronet_default_search_space_matches_train_config() -> None:
         tuned = compose(config_name="train", overrides=["search=ga"], return_hydra_config=True)
     params = cfg.hydra.sweeper.params
     assert set(params) == {"model.n_centers", "model.width_init", "optim.lr",
-                           "train.weight_decay", "data.rate_tau_s", "seed"}
+                           "train.weight_decay", "data.rate_tau_s", "seed", "train.for_bundle"}
+    # search jobs stop at validation; the final run of the best makes the bundle
+    assert params["train.for_bundle"] == "false" and dict(cfg.hydra.sweeper.final) == {"train.for_bundle": "true"}
     # every searched key exists in the training config, so each job's override applies
     missing = [k for k in params if OmegaConf.select(cfg, k, default="<missing>") == "<missing>"]
     assert missing == []
@@ -231,6 +235,31 @@ def test_failed_jobs_score_inf_and_the_sweep_goes_on(app: Path) -> None:
     assert all(e["fitness"] is None and "boom" in e["error"] for e in failed)
     results = OmegaConf.load(app / "sweep" / "optimization_results.yaml")
     assert results.best_evaluated_params.x <= 0
+
+
+def test_the_final_run_makes_the_best_artifact_with_the_final_overrides(app: Path) -> None:
+    (app / "conf" / "hydra" / "sweeper" / "final").mkdir()
+    (app / "conf" / "hydra" / "sweeper" / "final" / "default.yaml").write_text('stage: "final"\n')
+    with open(app / "conf" / "config.yaml", "a") as config:
+        config.write("stage: search\n")
+    run_app(app)
+    jobs = [e for g in history(app)["generations"] for e in g["individuals"] if not e["cached"]]
+    assert calls(app) == len(jobs) + 1  # every search job, then the best once more
+    best = min(jobs, key=lambda e: e["fitness"])
+    copied = app / "sweep" / "best" / "compensator"
+    assert (copied / "stage.txt").read_text() == "final"
+    assert (copied / "params.txt").read_text() == f"{best['params']['x']} {best['params']['y']}"
+    results = OmegaConf.load(app / "sweep" / "optimization_results.yaml")
+    assert results.best_overrides[-1] == "stage=final"
+    assert (app / "sweep" / best["job_dir"] / "compensator" / "stage.txt").read_text() == "search"
+
+
+def test_a_final_run_that_cannot_start_leaves_the_best_search_jobs_artifact(app: Path) -> None:
+    (app / "conf" / "hydra" / "sweeper" / "final").mkdir()
+    (app / "conf" / "hydra" / "sweeper" / "final" / "default.yaml").write_text('no_such_key: "1"\n')
+    proc = run_app(app)
+    assert "the final run could not start" in proc.stdout + proc.stderr
+    assert (app / "sweep" / "best" / "compensator" / "stage.txt").read_text() == ""
 
 
 def test_too_many_failures_stop_the_sweep(app: Path) -> None:

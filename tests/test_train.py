@@ -157,6 +157,11 @@ def test_ga_sweep_of_the_real_training_gives_a_best_bundle_that_transfers(tmp_pa
     assert len(individuals) == 8 and all(i["status"] == "COMPLETED" for i in individuals)
     results = OmegaConf.load(sweep / "optimization_results.yaml")
     assert results.best_evaluated_result == pytest.approx(min(i["fitness"] for i in individuals))
+    # the search jobs skip the fit on every block; the final run of the best makes the bundle
+    assert results.best_overrides[-1] == "train.for_bundle=true"
+    logs = [p.read_text() for p in sweep.glob("*/train.log")]
+    assert len(logs) == sum(not i["cached"] for i in individuals) + 1
+    assert sum("continued on every block" in log for log in logs) == 1
     # the best bundle compensates another thermal history of the same sensor
     recording = load_recording(cycle_csv)
     out = Compensator.load(sweep / "best" / "compensator").process(recording.columns)

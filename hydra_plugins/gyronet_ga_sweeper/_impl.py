@@ -11,7 +11,7 @@ import logging
 import math
 import os
 import shutil
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any, Dict, List, Optional, Tuple
 
@@ -57,6 +57,7 @@ class GAOptions:
     start_from_config: bool
     resume: bool
     best_artifact: Optional[str]
+    final: Dict[str, str] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         if self.population_size < 1 or self.generations < 0:
@@ -135,6 +136,7 @@ class GASweeperImpl(Sweeper):
         # the bar shows on a terminal only: in a log file, the line per generation says it all
         bar = tqdm(total=opts.generations, initial=len(history.generations), desc="GA",
                    unit="gen", dynamic_ncols=True, disable=None)
+        completed = False
         try:
             for index in range(len(history.generations), opts.generations):
                 gen = self._evaluate(index, self._breed(index, history, space), fixed, history)
@@ -142,11 +144,12 @@ class GASweeperImpl(Sweeper):
                 history.save(self.sweep_dir / HISTORY_FILE)
                 self._report(gen, history, tb, bar)
                 self._check_failures(gen)
+            completed = True
         finally:
             bar.close()
             tb.close()
             if history.generations:
-                self._write_results(history)
+                self._write_results(history, final_run=completed)
 
     # -- ask
 
@@ -273,14 +276,15 @@ class GASweeperImpl(Sweeper):
         bar.set_postfix(best=f"{best_so_far:.4g}")
         bar.update(1)
 
-    def _write_results(self, history: History) -> None:
-        """``optimization_results.yaml`` and ``best/<best_artifact>`` from the best job so far."""
+    def _write_results(self, history: History, final_run: bool = False) -> None:
+        """``optimization_results.yaml`` and ``best/<best_artifact>`` from the best job so far
+        (with ``final_run``, from its run with ``final``'s overrides when there are any)."""
         best = history.best()
         results = {
             "name": "ga",
             "best_evaluated_params": best.params if best else None,
             "best_evaluated_result": best.fitness if best else None,
-            "best_overrides": best.overrides if best else None,
+            "best_overrides": self._with_final(best.overrides) if best else None,
             "best_job_dir": best.job_dir if best else None,
             "best_generation": history.generation_of(best) if best else None,
             "generations": len(history.generations),
@@ -291,13 +295,42 @@ class GASweeperImpl(Sweeper):
             log.warning("no job returned a finite value: no best parameters")
             return
         log.info("best value %.6g with %s", best.fitness, " ".join(to_overrides(best.params)))
-        self._copy_best(best)
+        self._copy_best((self._final_run(best) if final_run else None) or best.job_dir)
 
-    def _copy_best(self, best: Evaluation) -> None:
+    def _final_run(self, best: Evaluation) -> Optional[str]:
+        """Run the best individual once more with ``final``'s overrides; its job dir, or None."""
+        final = self.options.final
+        if not final or not self.options.best_artifact:
+            return None
+        log.info("final run of the best (job %d) with %s", self.job_idx, " ".join(f"{k}={v}" for k, v in final.items()))
+        try:
+            ret = self.launcher.launch([self._with_final(best.overrides)], initial_job_idx=self.job_idx)[0]
+        except Exception as err:  # a bad final override or a launcher failure must not lose the sweep's results
+            log.warning("the final run could not start (%s: %s): copying the best search job's %s instead",
+                        type(err).__name__, str(err).splitlines()[0] if str(err) else "", self.options.best_artifact)
+            return None
+        finally:
+            self.job_idx += 1
+        fitness, status, error = score(ret)
+        if error:
+            log.warning("the final run %s (%s): copying the best search job's %s instead",
+                        status.lower(), error, self.options.best_artifact)
+            return None
+        log.info("final run: value %.6g (the search job's %.6g)", fitness, best.fitness)
+        return job_dir(ret, self.sweep_dir)
+
+    def _with_final(self, overrides: List[str]) -> List[str]:
+        """``overrides`` with ``final``'s in place of any for the same keys."""
+        final = self.options.final
+        keys = {k.lstrip("+~") for k in final}
+        kept = [o for o in overrides if o.split("=", 1)[0].lstrip("+~") not in keys]
+        return kept + [f"{k}={v}" for k, v in final.items()]
+
+    def _copy_best(self, best_dir: Optional[str]) -> None:
         name = self.options.best_artifact
-        if not name or best.job_dir is None:
+        if not name or best_dir is None:
             return
-        src = self.sweep_dir / best.job_dir / name  # an absolute job_dir replaces the prefix
+        src = self.sweep_dir / best_dir / name  # an absolute job_dir replaces the prefix
         dst = self.sweep_dir / "best" / name
         if not src.is_dir():
             log.warning("the best job wrote no %s folder: nothing copied to %s", src, dst)

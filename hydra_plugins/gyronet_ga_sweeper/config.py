@@ -6,8 +6,9 @@ from hydra.core.config_store import ConfigStore
 
 # An application may ship its default search space as conf/hydra/sweeper/params/default.yaml;
 # it fills hydra.sweeper.params and is skipped when absent. Select another with
-# hydra/sweeper/params=NAME.
-defaults: List[Any] = ["_self_", {"optional params": "default"}]
+# hydra/sweeper/params=NAME. Likewise conf/hydra/sweeper/final/default.yaml fills
+# hydra.sweeper.final.
+defaults: List[Any] = ["_self_", {"optional params": "default"}, {"optional final": "default"}]
 
 
 @dataclass
@@ -66,6 +67,12 @@ class GASweeperConf:
     # non-sweep values are passed unchanged to every job; sweep overrides on the command
     # line (x='interval(0, 1)') are added to it and win over the same key here
     params: Dict[str, str] = field(default_factory=dict)
+
+    # overrides (key: value) for one more run of the best individual after the last generation,
+    # whose best_artifact is the one copied to <sweep dir>/best/: work the fitness does not need
+    # (gyronet's search jobs stop at validation, train.for_bundle=false in params; the final run
+    # sets it true). Empty: no final run, the best search job's artifact is copied
+    final: Dict[str, str] = field(default_factory=dict)
 
 
 ConfigStore.instance().store(

@@ -24,6 +24,7 @@ class GASweeper(Sweeper):
         best_artifact: Optional[str],
         params: Optional[DictConfig] = None,
         start_from_config: bool = True,
+        final: Optional[DictConfig] = None,
     ) -> None:
         from ._impl import GAOptions, GASweeperImpl
 
@@ -40,6 +41,7 @@ class GASweeper(Sweeper):
             start_from_config=start_from_config,
             resume=resume,
             best_artifact=best_artifact,
+            final={str(k): str(v) for k, v in (final or {}).items()},
         )
         self.sweeper = GASweeperImpl(options, params)
 
