@@ -135,6 +135,8 @@ class Px4Cubic(_Px4Polynomial):
         PX4's 31 and 2000.
     """
 
+    linear_in_target = False  # the median filter: run offsets cannot be solved jointly with it
+
     def __init__(self, n_inputs: int, n_outputs: int = 3, temp_index: int = 0, resample: bool = True,
                  median_samples: int = MEDIAN_SAMPLES, n_bins: int = N_BINS):
         super().__init__(n_inputs, n_outputs, temp_index)
@@ -182,6 +184,8 @@ class Px4Onboard(_Px4Polynomial):
         The input holding the time since the start in hours (feature ``{kind: time}``); -1: none, and
         ``settle_s`` is not applied.
     """
+
+    linear_in_target = False  # one rising sweep's samples in time order: offsets per run have no meaning
 
     def __init__(self, n_inputs: int, n_outputs: int = 3, temp_index: int = 0, temp_rise_c: float = 24.0,
                  start_temp_min_c: float = 5.0, start_temp_max_c: float = 10.0, settle_s: float = 10.0,

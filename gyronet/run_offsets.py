@@ -16,6 +16,8 @@ import numpy as np
 import torch
 from torch import Tensor, nn
 
+from gyronet.errors import GyronetError
+
 log = logging.getLogger(__name__)
 
 
@@ -66,6 +68,9 @@ class RunOffsets(nn.Module):
     @torch.no_grad()
     def fit_closed_form(self, model: nn.Module, x: Tensor, y: Tensor) -> None:
         """Fit a closed-form model (``fit_closed_form``) and the offsets jointly: extra dummy columns, in effect."""
+        if not getattr(model, "linear_in_target", True):
+            raise GyronetError(f"{type(model).__name__} cannot fit run offsets (its fit is not linear in the data, "
+                               "as Frisch-Waugh-Lovell needs): set data.run_offsets=false")
         def fit_predict(target: Tensor) -> Tensor:
             model.fit_closed_form(x, target)
             return model(x)

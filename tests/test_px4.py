@@ -178,3 +178,13 @@ def test_px4_fit_equals_px4s_own_script_on_the_same_ulog(tmp_path, case):
     poly3 = TempPolynomial(1)
     poly3.fit_closed_form(x, y)
     assert np.abs(poly3(_tensor(grid[:, None])).numpy() - expected).max() > 1e-3
+
+
+def test_px4_models_refuse_run_offsets_in_one_line():
+    from gyronet.run_offsets import RunOffsets
+
+    x = torch.linspace(0.0, 30.0, 200, dtype=torch.float64)[:, None]
+    offsets = RunOffsets(np.repeat([0, 1], 100), 2)
+    for model in (Px4Cubic(1), Px4Onboard(1)):
+        with pytest.raises(GyronetError, match="cannot fit run offsets.*data.run_offsets=false"):
+            offsets.fit_closed_form(model, x, torch.zeros(200, 3, dtype=torch.float64))
