@@ -7,7 +7,9 @@ what the sensor reported is written as the CSV's ``#`` metadata (``fs_hz``, ``se
 frames (CONTRACT.md section 1), each value as the shortest text that reads back to the same
 number, one ``os.write`` per line, so a kill leaves whole lines. A sensor clock that restarts (a
 replug) keeps ``time_s`` increasing: the new segment continues one interval plus ``restart_gap_s``
-after the last sample, a break in the record.
+after the last sample, a break in the record. A sensor that comes back after the port was lost is
+set up again (or its first frames checked again) before its rows are written, and refused if it is
+not the one set up at the start.
 """
 from __future__ import annotations
 
@@ -20,7 +22,7 @@ from typing import Callable, Mapping
 from gyronet.errors import ConfigError
 from gyronet.stream.events import FaultCounter, Sample, SampleCheck
 from gyronet.stream.lpbus_setup import LpBusSetup, start_lpbus
-from gyronet.stream.output import OutputError, write_summary
+from gyronet.stream.summary import OutputError, write_summary
 from gyronet.stream.reader import open_port_or_fail, read_samples
 
 log = logging.getLogger(__name__)
@@ -61,8 +63,9 @@ def record_stream(port: str, output: str | Path, baud: int = 921600, lpbus: LpBu
     def should_stop() -> bool:
         return external_stop() or (duration_s is not None and time.monotonic() - started >= duration_s)
 
-    items = read_samples(opened, start.parser(SampleCheck(**dict(clock or {}))), url=port, baud=baud,
-                         timeout_s=read_timeout_s, should_stop=should_stop, **dict(reconnect or {}))
+    parser = start.parser(SampleCheck(**dict(clock or {})))
+    items = read_samples(opened, parser, url=port, baud=baud, timeout_s=read_timeout_s, should_stop=should_stop,
+                         on_reopen=start.reopen_hook(parser, port), **dict(reconnect or {}))
     stopped, offset_s, last_s, interval_s, restarts = "port_gone", 0.0, None, 0.0, 0
     try:
         for item in items:
