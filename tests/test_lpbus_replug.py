@@ -6,7 +6,6 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from gyronet.compensator import Compensator
 from gyronet.data import GYRO_COLUMNS, load_recording
 from gyronet.stream.lpbus_device import EmulatedLpms
 from gyronet.stream.lpbus_link import SensorError
@@ -104,3 +103,39 @@ def test_record_sets_a_power_cycled_sensor_up_again(short_recording, tmp_path):
                                   [layout.quantize({c: float(second[c][i]) for c in layout.columns
                                                     if c in second})["temp_c"] for i in range(SPLIT)])
     assert np.all(np.diff(saved.columns["time_s"]) > 0)
+
+
+def test_a_link_drop_without_a_power_cycle_is_set_up_again_with_nothing_to_change(bundle, short_recording, tmp_path,
+                                                                                    caplog):
+    from gyronet.stream import FaultPlan
+
+    recording = load_recording(short_recording)
+    device = power_on("LPMS-CU2")
+    link = tmp_path / "sensor"
+    thread = started(play_in_thread(None, link, device=device, columns=recording.columns,
+                                    faults=FaultPlan(drop_port_at_s=(50.0,))), link)
+    with caplog.at_level(logging.INFO, logger="gyronet.stream.lpbus_setup"):
+        summary = run_live(bundle, link, tmp_path, LpBusSetup(configure=True, timeout_s=2.0))
+    thread.join(10)
+    assert "LPMS-CU2 set up again: it had kept its settings" in caplog.text
+    assert summary["n_samples"] == N_SAMPLES and summary["faults"] == {"port_lost": 2}
+    assert device.commands.count(6) == 2 and device.commands[-1] == 7
+
+
+def test_record_refuses_another_sensor_after_a_replug_and_still_writes_its_summary(short_recording, tmp_path):
+    import json
+
+    from gyronet.stream.record import record_stream
+
+    first, second = halves(short_recording)
+    for columns in (first, second):
+        columns["time_s"] = np.arange(len(columns["time_s"])) / 100.0
+    link = tmp_path / "sensor"
+    started(play_in_thread(None, link, device=power_on("LPMS-CU2"), columns=first,
+                           replugs=[(power_on("LPMS-B2"), second)]), link)
+    with pytest.raises(SensorError, match=r"sensor legacy LPMS-B2, firmware 2\.0\.5, not legacy LPMS-CU2"):
+        record_stream(str(link), tmp_path / "run.csv", lpbus=LpBusSetup(configure=True, rate_hz=100),
+                      reconnect=FAST, summary_path=tmp_path / "s.json")
+    summary = json.loads((tmp_path / "s.json").read_text())
+    assert summary["stopped"] == "refused" and "LPMS-B2" in summary["refused"]
+    assert summary["n_samples"] == len(load_recording(tmp_path / "run.csv")) == SPLIT

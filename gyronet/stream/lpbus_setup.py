@@ -103,7 +103,7 @@ class LpBusStart:
     layout: LpBusLayout
     sensor: SensorInfo | None = None
     probe: FirstFrames | None = None
-    configure_again: Callable[[Any], SensorInfo] | None = field(default=None, repr=False)
+    configure_again: Callable[[Any], SensorInfo] | None = field(default=None, repr=False)  # the set-up, on a port
 
     def parser(self, check=None) -> LpBusParser:
         parser = LpBusParser(self.layout, check=check)
@@ -126,7 +126,10 @@ class LpBusStart:
                             f"checking its first {parser.probe.n_frames} frames again" if parser.probe is not None
                             else "its frames are not checked (lpbus.check_frames=0)")
                 return
-            info = self.configure_again(port)
+            try:
+                info = self.configure_again(port)
+            except SensorError as err:
+                raise SensorError(f"{err} (set-up again after the port was lost and reopened)") from None
             _refuse_another_sensor(port_name, self.sensor, info)
             parser.prime(info.leftover)
             log.warning("%s: reopened; %s set up again: %s", port_name, info.model,

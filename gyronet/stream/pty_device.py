@@ -95,8 +95,9 @@ def play_plugs(plugs: Sequence[Plug], sensor: PtySensor, speed: float = 1.0, com
         log.info("emulated %s %s; streaming %s", device.model,
                  "configured by the host" if talked else "not configured", device.layout().describe())
         plans.append(plug.make_plan(device.layout()))
+        # a port drop within a plan: the sensor stayed powered (its settings kept), the host may set it up again
         play(plans[-1], sensor, speed, reader_timeout_s=reader_timeout_s, port_down_s=port_down_s, opened=True,
-             **play_options)
+             after_drop=lambda: serve_commands(device, sensor, command_wait_s), **play_options)
     return plans
 
 

@@ -136,10 +136,11 @@ class PtySensor:
 def play(plan: StreamPlan, sensor: PtySensor, speed: float = 1.0, reader_timeout_s: float = 30.0,
          port_down_s: float = 0.5, drain_timeout_s: float = 10.0,
          clock: Callable[[], float] = time.monotonic, sleep: Callable[[float], None] = time.sleep,
-         opened: bool = False) -> int:
+         opened: bool = False, after_drop: Callable[[], object] | None = None) -> int:
     """Send a plan into ``sensor``: in real time divided by ``speed`` (0: as fast as possible).
 
-    ``opened``: the pty is open and its reader there already (``play_device``).
+    ``opened``: the pty is open and its reader there already (``play_device``). ``after_drop``:
+    called once the reader is back after each port drop (an emulated sensor answers it again).
 
     Returns
     -------
@@ -160,6 +161,8 @@ def play(plan: StreamPlan, sensor: PtySensor, speed: float = 1.0, reader_timeout
                 sleep(delay)
         if event.drop:
             _drop(sensor, plan, reader_timeout_s, port_down_s, drain_timeout_s, sleep)
+            if after_drop is not None:
+                after_drop()
         else:
             sensor.write(event.data)
     sensor.drain(drain_timeout_s)

@@ -21,6 +21,8 @@ from typing import Callable, Mapping
 
 from gyronet.errors import ConfigError
 from gyronet.stream.events import FaultCounter, Sample, SampleCheck
+from gyronet.stream.lpbus_link import SensorError
+from gyronet.stream.lpbus_probe import LayoutError
 from gyronet.stream.lpbus_setup import LpBusSetup, start_lpbus
 from gyronet.stream.summary import OutputError, write_summary
 from gyronet.stream.reader import open_port_or_fail, read_samples
@@ -42,6 +44,9 @@ def record_stream(port: str, output: str | Path, baud: int = 921600, lpbus: LpBu
     PortError, SensorError, ConfigError
         Before any row: a port that cannot be opened, a sensor that does not answer or cannot be
         set up, a layout without gyro and temperature.
+    SensorError, LayoutError
+        After a replug: the sensor that came back is another one, or (listening) its first frames
+        do not fit; the rows so far stay whole and the summary (``stopped: refused``) is written.
     OutputError
         When the output cannot be written.
     """
@@ -67,6 +72,7 @@ def record_stream(port: str, output: str | Path, baud: int = 921600, lpbus: LpBu
     items = read_samples(opened, parser, url=port, baud=baud, timeout_s=read_timeout_s, should_stop=should_stop,
                          on_reopen=start.reopen_hook(parser, port), **dict(reconnect or {}))
     stopped, offset_s, last_s, interval_s, restarts = "port_gone", 0.0, None, 0.0, 0
+    refusal: Exception | None = None
     try:
         for item in items:
             counter.add(item)
@@ -89,14 +95,19 @@ def record_stream(port: str, output: str | Path, baud: int = 921600, lpbus: LpBu
             stopped = "interrupted" if external_stop() else "duration" if should_stop() else "port_gone"
     except KeyboardInterrupt:
         stopped = "interrupted"
+    except (SensorError, LayoutError) as err:  # after a replug: another sensor, or frames that do not fit
+        stopped, refusal = "refused", err
     finally:
         items.close()
         out.close()
     summary = {"stopped": stopped, "n_samples": out.n_rows, "faults": counter.as_dict(), "n_faults": counter.n_faults,
-               "clock_restarts": restarts, "output": str(out.path), "sensor": start.as_dict()}
+               "clock_restarts": restarts, "output": str(out.path), "sensor": start.as_dict(),
+               **({"refused": str(refusal)} if refusal is not None else {})}
     log.info("recorded %d samples into %s (%s); %s", out.n_rows, out.path, stopped, counter.summary())
     if summary_path is not None:
         write_summary(summary_path, summary)
+    if refusal is not None:
+        raise refusal
     return summary
 
 
