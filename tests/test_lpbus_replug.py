@@ -139,3 +139,29 @@ def test_record_refuses_another_sensor_after_a_replug_and_still_writes_its_summa
     summary = json.loads((tmp_path / "s.json").read_text())
     assert summary["stopped"] == "refused" and "LPMS-B2" in summary["refused"]
     assert summary["n_samples"] == len(load_recording(tmp_path / "run.csv")) == SPLIT
+
+
+def test_ctrl_c_without_a_stop_poll_still_writes_the_chunk_in_flight(tmp_path, monkeypatch):
+    """record_stream called from Python (no ``stop``): SIGINT at the 10th row of a 25-sample read."""
+    import os
+    import signal
+
+    from gyronet.stream import Sample
+    from gyronet.stream import record
+
+    values = {"gyro_x_dps": 0.1, "gyro_y_dps": 0.2, "gyro_z_dps": 0.3, "acc_x_g": 0.0, "acc_y_g": 0.0,
+              "acc_z_g": 1.0, "temp_c": 30.0}
+
+    def two_reads(port, parser, *, should_stop, **options):
+        for read in range(2):
+            if should_stop():
+                return
+            for i in range(25):
+                if read == 0 and i == 10:
+                    os.kill(os.getpid(), signal.SIGINT)
+                yield Sample(0.01 * (25 * read + i), values)
+
+    monkeypatch.setattr(record, "read_samples", two_reads)
+    summary = record.record_stream("loop://", tmp_path / "run.csv", lpbus=LpBusSetup(configure=False))
+    assert summary["stopped"] == "interrupted" and summary["n_samples"] == 25
+    assert len(load_recording(tmp_path / "run.csv")) == 25

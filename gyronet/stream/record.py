@@ -13,6 +13,7 @@ not the one set up at the start.
 """
 from __future__ import annotations
 
+import contextlib
 import logging
 import os
 import time
@@ -26,6 +27,7 @@ from gyronet.stream.lpbus_probe import LayoutError
 from gyronet.stream.lpbus_setup import LpBusSetup, start_lpbus
 from gyronet.stream.summary import OutputError, write_summary
 from gyronet.stream.reader import open_port_or_fail, read_samples
+from gyronet.stream.signals import stop_on_signals
 
 log = logging.getLogger(__name__)
 
@@ -38,6 +40,9 @@ def record_stream(port: str, output: str | Path, baud: int = 921600, lpbus: LpBu
                   summary_path: str | Path | None = None, restart_gap_s: float = 1.0,
                   stop: Callable[[], bool] | None = None) -> dict:
     """Set the sensor up, record it into ``output`` until told to stop; return the summary.
+
+    ``stop`` is polled between reads; without one, SIGINT and SIGTERM stop the recording there
+    (:func:`~gyronet.stream.signals.stop_on_signals`), so what was read is written.
 
     Raises
     ------
@@ -63,7 +68,8 @@ def record_stream(port: str, output: str | Path, baud: int = 921600, lpbus: LpBu
         opened.close()
         raise
     counter, started = FaultCounter(), time.monotonic()
-    external_stop = stop or (lambda: False)
+    signals = contextlib.ExitStack()  # without ``stop``, Ctrl-C is polled too: the chunk in flight is written
+    external_stop = stop or signals.enter_context(stop_on_signals())
 
     def should_stop() -> bool:
         return external_stop() or (duration_s is not None and time.monotonic() - started >= duration_s)
@@ -100,6 +106,7 @@ def record_stream(port: str, output: str | Path, baud: int = 921600, lpbus: LpBu
     finally:
         items.close()
         out.close()
+        signals.close()
     summary = {"stopped": stopped, "n_samples": out.n_rows, "faults": counter.as_dict(), "n_faults": counter.n_faults,
                "clock_restarts": restarts, "output": str(out.path), "sensor": start.as_dict(),
                **({"refused": str(refusal)} if refusal is not None else {})}
