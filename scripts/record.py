@@ -4,7 +4,7 @@ from pathlib import Path
 
 from omegaconf import DictConfig, OmegaConf
 
-from gyronet.stream.live import stop_on_signals
+from gyronet.stream.signals import stop_on_signals
 from gyronet.stream.lpbus_setup import LpBusSetup
 from gyronet.stream.record import record_stream
 

@@ -5,6 +5,7 @@ tests are in test_lpbus_live.py. Frames "as the reference parser expects" are bu
 ``struct`` from the reference's own description (OpenZen ImuComponent.cpp / ImuIg1Component.cpp),
 not with gyronet's encoder.
 """
+import logging
 import math
 import struct
 from dataclasses import replace
@@ -14,7 +15,8 @@ import pytest
 from gyronet.stream import LpBusLayout, LpBusParser, Sample, encode_lpbus
 from gyronet.stream.lpbus_config import Wanted, configure_sensor
 from gyronet.stream.lpbus_device import EmulatedLpms
-from gyronet.stream.lpbus_link import SensorError
+from gyronet.stream import lpbus_legacy as legacy
+from gyronet.stream.lpbus_link import LpBusLink, SensorError
 from gyronet.stream.lpbus_probe import FirstFrames, LayoutError
 from gyronet.stream.lpbus_setup import LpBusSetup, is_serial_device
 
@@ -141,6 +143,39 @@ def test_a_silent_port_is_one_clear_error():
         configure_sensor(FakePort(EmulatedLpms(), mute=True), WANTED, 0.05)
 
 
+class LatePort(FakePort):
+    """The reply to the first ``late`` command comes after the host's timeout: just before the next reply."""
+
+    def __init__(self, device, late: int):
+        super().__init__(device)
+        self.late, self.held = late, b""
+
+    def write(self, data: bytes) -> None:
+        replies = b"".join(self.device.feed(data))
+        self.inbox += self.held
+        self.held = b""
+        if self.late is not None and self.device.commands[-1] == self.late:
+            self.late, self.held = None, replies
+        else:
+            self.inbox += replies
+
+
+def test_a_late_ack_is_never_taken_for_a_later_commands_reply():
+    device = EmulatedLpms(model="LPMS-CU2")
+    link = LpBusLink(LatePort(device, late=legacy.SET_STREAM_FREQ), timeout_s=0.05)
+    link.set(legacy.GOTO_COMMAND_MODE, "GOTO_COMMAND_MODE")
+    with pytest.raises(SensorError, match=r"no answer to SET_STREAM_FREQ \(command 11\)"):
+        link.set_int(legacy.SET_STREAM_FREQ, "SET_STREAM_FREQ", 100)
+    with pytest.raises(SensorError, match=r"refused SET_STREAM_FREQ \(command 11, NACK\)"):  # not the late ACK
+        link.set_int(legacy.SET_STREAM_FREQ, "SET_STREAM_FREQ", 123)
+    assert device.commands == [6, 11, 21, 11]
+    # a command-mode ACK late past the timeout: command mode is asked again, then the set-up goes on in step
+    device = EmulatedLpms(model="LPMS-CU2", rate_hz=50, fields=("quaternion",), gyro_autocalibration=True)
+    info = configure_sensor(LatePort(device, late=legacy.GOTO_COMMAND_MODE), WANTED, timeout_s=0.05)
+    assert device.commands[:3] == [6, 6, 21] and device.commands[-1] == 7
+    assert info.rate_hz == 100 and info.layout.fields == WANTED.fields and not info.gyro_autocalibration
+
+
 class NoOutputs(EmulatedLpms):
     """An IG1 that refuses SET_IMU_TRANSMIT_DATA."""
 
@@ -206,6 +241,26 @@ def test_same_length_misreads_are_refused_by_the_first_frames():
     assert all(isinstance(item, Sample) for item in right.feed(ig1))
 
 
+def test_frames_are_held_until_the_first_frames_check_passes():
+    """Fed a frame at a time (a pty read each), a misread is refused before any of it gets out; a port lost
+    before the check is done has the frames so far judged at the flush."""
+    misread = [ig1_frame(i, (0.01, -0.02, 0.99), (0.05, -0.03, 0.01), 25.0) for i in range(20)]
+    parser = LpBusParser(LpBusLayout())
+    parser.probe = FirstFrames(parser.layout, 20)
+    with pytest.raises(LayoutError):
+        for frame in misread:
+            assert parser.feed(frame) == []
+    cut = LpBusParser(LpBusLayout())
+    cut.probe = FirstFrames(cut.layout, 20)
+    assert cut.feed(b"".join(misread[:5])) == []
+    with pytest.raises(LayoutError, match="the first 5 frames"):
+        cut.flush()
+    right = LpBusParser(LpBusLayout(generation="ig1"))
+    right.probe = FirstFrames(right.layout, 20)
+    assert [right.feed(frame) for frame in misread[:19]] == [[]] * 19
+    assert len(right.feed(misread[19])) == 20 and len(right.feed(misread[0])) == 1  # then frame by frame
+
+
 def test_a_stream_faster_than_its_timestamp_clock_says_which_setting():
     # 1 kHz frames counted at 400 Hz: 60 % of them repeat a time
     frames = b"".join(legacy_frame(int(i * 0.4), (0.0, 0.0, 0.0), (0.0, 0.0, 1.0), 25.0) for i in range(20))
@@ -225,6 +280,35 @@ def test_an_800_hz_clock_read_at_400_hz_names_the_setting():
     right = LpBusParser(LpBusLayout(timestamp_hz=800.0))
     right.probe = FirstFrames(right.layout, 20, expected_hz=800.0)
     assert len(right.feed(frames)) == 20
+
+
+def test_without_acceleration_the_quaternion_and_the_clock_are_checked_else_the_log_says_so(caplog):
+    row = {"time_s": 0.0, "gyro_x_dps": 0.5, "gyro_y_dps": -0.2, "gyro_z_dps": 0.1, "temp_c": 31.5,
+           "quat_w": 0.6, "quat_x": 0.0, "quat_y": 0.0, "quat_z": 0.8,
+           "euler_x_deg": 12.0, "euler_y_deg": -40.0, "euler_z_deg": 170.0}
+
+    def frames(layout, step_s):
+        return b"".join(encode_lpbus({**row, "time_s": i * step_s}, layout) for i in range(20))
+
+    def probed(layout):
+        parser = LpBusParser(layout)
+        parser.probe = FirstFrames(layout, 20, "port P")  # no bundle: record.py
+        return parser
+
+    # quaternion + euler + temperature read as gyro + quaternion + temperature: the same 32 data bytes
+    shifted = frames(LpBusLayout(("quaternion", "euler", "temperature")), 0.01)
+    with pytest.raises(LayoutError, match=r"register bits legacy 12, 13, 18\): the quaternion reads \|q\| = 3.16 "):
+        probed(LpBusLayout(("gyro", "quaternion", "temperature"))).feed(shifted)
+    assert len(probed(LpBusLayout(("quaternion", "euler", "temperature"))).feed(shifted)) == 20
+    # an IG1 at 100 Hz (500 Hz ticks) read as legacy (400 Hz ticks): 80 Hz, no legacy rate
+    ig1 = frames(LpBusLayout(("gyro", "temperature"), generation="ig1"), 0.01)
+    with pytest.raises(LayoutError, match=r"at 80 Hz by its times, no rate a legacy sensor streams at, but 100 Hz "
+                                          r"times 400/500: the timestamp counts at 500 Hz"):
+        probed(LpBusLayout(("gyro", "temperature"))).feed(ig1)
+    with caplog.at_level(logging.WARNING, logger="gyronet.stream.lpbus_probe"):
+        assert len(probed(LpBusLayout(("gyro", "temperature"), generation="ig1")).feed(ig1)) == 20
+    assert "fit ig1 LP-BUS" in caplog.text and "in their times and temperature, but which output sits where could " \
+        "not be checked" in caplog.text
 
 
 def test_setup_refuses_a_bundle_trained_on_the_host_corrected_gyro():

@@ -40,10 +40,6 @@ def power_on(model: str) -> EmulatedLpms:
                         gyro_autocalibration=True)
 
 
-def preroll_row(columns, layout) -> dict:
-    return {c: float(v[0]) for c, v in fill_columns(columns, layout).items()}
-
-
 def offline(bundle, columns, plan, layout):
     """compensate.py on the good samples as they read after their trip through the final layout."""
     rows = [layout.quantize({c: float(columns[c][i]) for c in layout.columns}) for i in plan.log["good_indices"]]
@@ -62,8 +58,7 @@ def test_configured_sensor_streams_and_live_equals_offline(bundle, short_recordi
     faults = FaultPlan(garbage_rate=0.03, corrupt_rate=0.03, truncate_rate=0.02, seed=4)
     link = tmp_path / "sensor"
     thread = started(play_in_thread(None, link, device=device, columns=recording.columns, faults=faults,
-                                    preroll_frames=5, preroll_row=preroll_row(recording.columns, device.layout())),
-                     link)
+                                    preroll_frames=5), link)
     summary = run_stream(bundle, str(link), tmp_path / "live.csv", allan_every_s=0, summary_path=tmp_path / "s.json",
                          reconnect={**FAST, "wait_at_start": False}, resample=True,
                          lpbus=LpBusSetup(configure=True, timeout_s=2.0))

@@ -15,14 +15,12 @@ sensor's own times, so each segment equals ``compensate.py`` on that segment's s
 """
 from __future__ import annotations
 
-import contextlib
 import importlib
 import logging
 import signal
-import threading
 import time
 from pathlib import Path
-from typing import Any, Callable, Iterator, Mapping
+from typing import Any, Callable, Mapping
 
 from gyronet.compensator import Compensator
 from gyronet.stream import FaultCounter, LpBusLayout, Sample, SampleCheck, make_parser
@@ -31,6 +29,7 @@ from gyronet.stream.live_allan import LiveAllan
 from gyronet.stream.lpbus_setup import LpBusSetup, LpBusStart, start_lpbus
 from gyronet.stream.output import LiveWriter, OutputError, output_names, write_summary
 from gyronet.stream.reader import open_port_or_fail, read_chunks
+from gyronet.stream.signals import stop_on_signals
 
 log = logging.getLogger(__name__)
 
@@ -130,7 +129,7 @@ def run_stream(bundle_dir: str | Path, port: str, output: str | Path, protocol: 
 
     log.info("streaming %s (%s, %d baud) through %s into %s", port, protocol, baud, bundle_dir, output)
     chunks = read_chunks(opened, parser, url=port, baud=baud, timeout_s=read_timeout_s, should_stop=should_stop,
-                         **options)
+                         on_reopen=sensor.reopen_hook(parser, port) if sensor is not None else None, **options)
     gate = RateGate(compensator, resample, f"{port}: the stream",
                     RATE_PROBE_SAMPLES if max_samples is None else min(RATE_PROBE_SAMPLES, max_samples))
     sink = ChunkWriter(compensator, out, allan, port, max_samples)
@@ -180,31 +179,6 @@ def _good_samples(chunk: list, counter: FaultCounter, gate: RateGate, sink: Chun
         if room is not None and len(ready) >= room:
             break  # what follows is not read, as when the run stopped right after this sample
     return ready
-
-
-@contextlib.contextmanager
-def stop_on_signals(signals: tuple[int, ...] = (signal.SIGINT, signal.SIGTERM)) -> Iterator[Callable[[], bool]]:
-    """Within the block, SIGINT and SIGTERM ask the run to stop; yields the ``stop`` poll for ``run_stream``.
-
-    The handlers are installed explicitly, whatever the parent left: a shell starts a background
-    job with SIGINT ignored, and an inherited SIG_IGN would make Ctrl-C (or ``kill -INT``) do
-    nothing. A handler only sets a flag, so no write is cut in the middle. The previous handlers
-    are restored on exit. Only the main thread can install handlers; elsewhere this does nothing.
-    """
-    requested = threading.Event()
-    if threading.current_thread() is not threading.main_thread():
-        yield requested.is_set
-        return
-
-    def _request(signum, frame):
-        requested.set()
-
-    previous = {signum: signal.signal(signum, _request) for signum in signals}
-    try:
-        yield requested.is_set
-    finally:
-        for signum, handler in previous.items():
-            signal.signal(signum, handler)
 
 
 def interrupt_on_sigterm() -> None:

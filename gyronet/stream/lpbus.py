@@ -58,7 +58,8 @@ class LpBusParser:
     header starts inside it (parsing resumes there, so the good frame next to a cut one is kept),
     else a ``bad_checksum`` or ``bad_footer`` fault and parsing resumes after it. A good frame of
     another length than the layout's is a ``bad_length`` fault: the sensor sends other fields
-    than ``layout.fields``.
+    than ``layout.fields``. While a first-frames check (``probe``) is undecided, what the frames
+    make is held back, so a misread the check refuses never reaches the consumer.
 
     Parameters
     ----------
@@ -83,6 +84,7 @@ class LpBusParser:
         self._buffer = bytearray()
         self._garbage = bytearray()
         self.probe = None  # a first-frames layout check (gyronet.stream.lpbus_probe.FirstFrames), or None
+        self._held: list[Sample | Fault] = []  # what the frames made while the probe was undecided
 
     @property
     def columns(self) -> list[str]:
@@ -98,7 +100,7 @@ class LpBusParser:
         out: list[Sample | Fault] = []
         position = self._consume(out, final=False)
         del self._buffer[:position]
-        return out
+        return self._release(out)
 
     def flush(self) -> list[Sample | Fault]:
         """End of stream (or of a connection): parse what can be, report what is left as cut."""
@@ -109,6 +111,20 @@ class LpBusParser:
         self._flush_garbage(out)
         if rest:
             out.append(Fault("truncated", rest, "stream ended inside a frame"))
+        return self._release(out, final=True)
+
+    def _release(self, out: list, final: bool = False) -> list[Sample | Fault]:
+        """``out``, or nothing while the probe is undecided; at the end, the probe judges the frames it has."""
+        if self.probe is None and not self._held:
+            return out
+        self._held += out
+        if self.probe is not None:
+            if not final:
+                return []
+            probe, self.probe = self.probe, None
+            if probe.frames:
+                probe.check()  # raises LayoutError: the held frames are misread
+        out, self._held = self._held, []
         return out
 
     def _consume(self, out: list, final: bool) -> int:

@@ -103,7 +103,7 @@ def configure_sensor(port, wanted: Wanted, timeout_s: float = 1.0) -> SensorInfo
 def _command_mode(link: LpBusLink) -> None:
     for attempt in range(1, COMMAND_MODE_ATTEMPTS + 1):
         try:
-            link.set(legacy.GOTO_COMMAND_MODE, "GOTO_COMMAND_MODE")
+            link.set(legacy.GOTO_COMMAND_MODE, "GOTO_COMMAND_MODE", again=attempt > 1)
             return
         except SensorError:
             if attempt == COMMAND_MODE_ATTEMPTS:

@@ -5,6 +5,12 @@ as OpenZen's ``LpFrameFactory::makeFrame`` and the IG1 library's ``sendCommand``
 answers a get with a frame of the same command id and the value, a set with an ACK (command 0)
 or NACK (command 1) without data (OpenMAT ``LpmsIoInterface.cpp``, ``REPLY_ACK``/``REPLY_NACK``).
 Sensor-data frames still in flight while the sensor leaves streaming are skipped.
+
+An ACK carries no command id, so one that comes after its command timed out could pass for the
+answer to the next set. The sensor answers in order, so after a timeout the link first asks
+``SYNC`` (command 21, answered in both generations by a frame of its own id): every late reply
+arrives before that answer and is skipped. Only the same command sent again (command mode, retried)
+takes any ACK, since each attempt's ACK means the same.
 """
 from __future__ import annotations
 
@@ -20,6 +26,7 @@ log = logging.getLogger(__name__)
 
 ACK, NACK = 0, 1
 SENSOR_DATA = 9
+SYNC = 21  # legacy GET_IMU_ID, IG1 GET_FIRMWARE_INFO: a get either generation answers
 MAX_REPLY_BYTES = 512
 
 
@@ -83,6 +90,7 @@ class LpBusLink:
         self.port, self.timeout_s, self.address, self.clock = port, float(timeout_s), int(address), clock
         self.reader = FrameReader()
         self.skipped_data_frames = 0
+        self.unanswered = 0  # commands that timed out: their replies may still come, before any later one
 
     def send(self, command: int, data: bytes = b"") -> None:
         self.port.write(lpbus_frame(self.address, command, data))
@@ -92,6 +100,8 @@ class LpBusLink:
 
     def ask(self, command: int, name: str, data: bytes = b"") -> bytes:
         """Send a get and return the data of its answer (a frame of the same command)."""
+        if self.unanswered and command != SYNC:
+            self.ask(SYNC, "GET_IMU_ID / GET_FIRMWARE_INFO (to pass late replies)")
         self.send(command, data)
         return self._wait(command, name)
 
@@ -102,8 +112,13 @@ class LpBusLink:
             raise SensorError(f"the sensor answered {name} (command {command}) with {len(reply)} bytes, not 4")
         return struct.unpack("<I", reply)[0]
 
-    def set(self, command: int, name: str, data: bytes = b"") -> None:
-        """Send a set (or a mode change) and wait for its ACK."""
+    def set(self, command: int, name: str, data: bytes = b"", again: bool = False) -> None:
+        """Send a set (or a mode change) and wait for its ACK.
+
+        ``again``: the same command, sent again after its timeout; an ACK to either attempt will do.
+        """
+        if self.unanswered and not again:
+            self.ask(SYNC, "GET_IMU_ID / GET_FIRMWARE_INFO (to pass late replies)")
         self.send(command, data)
         self._wait(ACK, name, sent=command)
 
@@ -116,13 +131,19 @@ class LpBusLink:
         while self.clock() < deadline:
             data = self.port.read(max(1, min(self.port.in_waiting, 4096)))
             for _, got, payload in self.reader.feed(data):
-                if got == command:
-                    return payload
-                if got == NACK:
-                    raise SensorError(f"the sensor refused {name} (command {sent}, NACK)")
                 if got == SENSOR_DATA:
                     self.skipped_data_frames += 1
+                elif got == command:
+                    if command != ACK:
+                        self.unanswered = 0  # a get's answer comes after every earlier reply
+                    return payload
+                elif got in (ACK, NACK) and self.unanswered and command != ACK:
+                    self.unanswered -= 1
+                    log.debug("skipped a late %s while waiting for %s", "ACK" if got == ACK else "NACK", name)
+                elif got == NACK:
+                    raise SensorError(f"the sensor refused {name} (command {sent}, NACK)")
                 else:
                     log.debug("skipped a reply to command %d while waiting for %s", got, name)
+        self.unanswered += 1
         raise SensorError(f"no answer to {name} (command {sent}) within {self.timeout_s:g} s: is this an "
                           "LP-Research LPMS sensor, at this baud rate? (lpbus.configure=false only listens)")

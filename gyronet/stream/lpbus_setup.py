@@ -6,13 +6,19 @@ what the sensor reports, the stream rate is set to the bundle's ``fs_hz`` (or ``
 sensor that cannot run at that rate is refused unless ``resample`` is on. Off, the layout is the
 configured one and the first frames are checked against it (:mod:`.lpbus_probe`). A bundle
 trained on the host-corrected gyro of an LPMS-Control log is refused: LP-BUS carries the raw one.
+
+A sensor unplugged and plugged back in may come back power-cycled (its power-on outputs, rate
+and gyro auto-calibration, unless they were saved to its flash). :meth:`LpBusStart.reopen_hook`
+is what the reader calls on the reopened port: the same set-up again, refused if the sensor now
+differs from the one set up at the start; listening, the first-frames check again.
 """
 from __future__ import annotations
 
+import functools
 import logging
 import os
-from dataclasses import dataclass
-from typing import Any, Mapping
+from dataclasses import dataclass, field
+from typing import Any, Callable, Mapping
 
 from gyronet.errors import BundleError, ConfigError
 from gyronet.stream.lpbus import LpBusParser
@@ -97,6 +103,7 @@ class LpBusStart:
     layout: LpBusLayout
     sensor: SensorInfo | None = None
     probe: FirstFrames | None = None
+    configure_again: Callable[[Any], SensorInfo] | None = field(default=None, repr=False)  # the set-up, on a port
 
     def parser(self, check=None) -> LpBusParser:
         parser = LpBusParser(self.layout, check=check)
@@ -104,6 +111,31 @@ class LpBusStart:
         if self.sensor is not None:
             parser.prime(self.sensor.leftover)
         return parser
+
+    def reopen_hook(self, parser: LpBusParser, port_name: str) -> Callable[[Any], None]:
+        """``on_reopen`` for :func:`~gyronet.stream.reader.read_chunks`: set up again, or check again, ``parser``'s sensor.
+
+        Raises (from the hook) ``SensorError`` when the sensor that came back differs from the
+        one set up at the start, or ``BundleError`` as at the start.
+        """
+
+        def on_reopen(port) -> None:
+            if self.sensor is None:
+                parser.probe = self.probe.again() if self.probe is not None else None
+                log.warning("%s: reopened; only listening, %s", port_name,
+                            f"checking its first {parser.probe.n_frames} frames again" if parser.probe is not None
+                            else "its frames are not checked (lpbus.check_frames=0)")
+                return
+            try:
+                info = self.configure_again(port)
+            except SensorError as err:
+                raise SensorError(f"{err} (set-up again after the port was lost and reopened)") from None
+            _refuse_another_sensor(port_name, self.sensor, info)
+            parser.prime(info.leftover)
+            log.warning("%s: reopened; %s set up again: %s", port_name, info.model,
+                        "; ".join(info.changed) or "it had kept its settings")
+
+        return on_reopen
 
     def as_dict(self) -> dict[str, Any]:
         if self.sensor is not None:
@@ -140,6 +172,15 @@ def start_lpbus(port, port_name: str, setup: LpBusSetup, meta: Mapping[str, Any]
         probe = FirstFrames(layout, setup.check_frames, port_name, expected_hz) if setup.check_frames > 0 else None
         log.info("%s: listening only (lpbus.configure=%s): %s", port_name, setup.configure, layout.describe())
         return LpBusStart(layout, None, probe)
+
+    info = _set_up(port, port_name, setup, fs_hz, resample, report=True)
+    return LpBusStart(info.layout, info, None,
+                      functools.partial(_set_up, port_name=port_name, setup=setup, fs_hz=fs_hz, resample=resample))
+
+
+def _set_up(port, port_name: str, setup: LpBusSetup, fs_hz: float | None, resample: bool,
+            report: bool = False) -> SensorInfo:
+    """Configure the sensor on ``port``; refuse a rate the bundle cannot take; log it all (``report``)."""
     rate = setup.rate_hz if setup.rate_hz is not None else fs_hz
     wanted = Wanted(setup.fields, rate, setup.precision, setup.gyro_autocalibration, setup.save,
                     setup.timestamp_hz, setup.sensor_id, any_rate=resample)
@@ -147,14 +188,34 @@ def start_lpbus(port, port_name: str, setup: LpBusSetup, meta: Mapping[str, Any]
         info = configure_sensor(port, wanted, setup.timeout_s)
     except SensorError as err:
         raise SensorError(f"{port_name}: {err}") from None
-    _report(port_name, info)
+    if report:
+        _report(port_name, info)
     if fs_hz is not None and abs(info.rate_hz - fs_hz) > RATE_TOLERANCE * fs_hz:
         message = (f"{port_name}: {info.model} streams at {info.rate_hz:g} Hz, but the bundle was trained at "
                    f"{fs_hz:g} Hz")
         if not resample:
             raise BundleError(message + "; pass resample=true to run the feature filters at the sensor's rate")
-        log.warning("%s; resample=true", message)
-    return LpBusStart(info.layout, info, None)
+        if report:
+            log.warning("%s; resample=true", message)
+    return info
+
+
+def _refuse_another_sensor(port_name: str, before: SensorInfo, now: SensorInfo) -> None:
+    """Refuse a sensor that came back as another one: identity, rate, frame layout, gyro auto-calibration."""
+
+    def account(info: SensorInfo) -> dict[str, str]:
+        register = "GET_CONFIG" if info.generation == "legacy" else "GET_IMU_TRANSMIT_DATA"
+        return {"sensor": f"{info.generation} {info.model}, firmware {info.firmware}", "rate": f"{info.rate_hz:g} Hz",
+                "frames": f"{info.layout.describe()} ({register} 0x{info.register:08x})",
+                "gyro auto-calibration": "on" if info.gyro_autocalibration else "off"}
+
+    old, new = account(before), account(now)
+    if now.layout == before.layout:
+        old["frames"] = new["frames"]  # the same frames; other register bits (the rate) are named above
+    differences = [f"{key} {new[key]}, not {old[key]}" for key in new if new[key] != old[key]]
+    if differences:
+        raise SensorError(f"{port_name}: the sensor that came back after the port was lost is not the one set up "
+                          f"at the start: {'; '.join(differences)}; the run stops (start it again for this sensor)")
 
 
 def _report(port_name: str, info: SensorInfo) -> None:

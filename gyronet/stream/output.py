@@ -9,7 +9,6 @@ or absent.
 from __future__ import annotations
 
 import itertools
-import json
 import logging
 import os
 from pathlib import Path
@@ -17,14 +16,10 @@ from pathlib import Path
 import numpy as np
 
 from gyronet.compensator import Compensated
-from gyronet.errors import GyronetError
 from gyronet.offline import output_columns
+from gyronet.stream.summary import OutputError, write_summary  # noqa: F401 (re-exported)
 
 log = logging.getLogger(__name__)
-
-
-class OutputError(GyronetError):
-    """The output (or the summary) cannot be written: a full disk, a folder that is not writable."""
 
 
 def output_names() -> list[str]:
@@ -93,25 +88,3 @@ class LiveWriter:
         if self._fd is not None:
             os.close(self._fd)
             self._fd = None
-
-
-def write_summary(path: str | Path, summary: dict) -> None:
-    """Write the summary JSON whole (temporary file, then rename).
-
-    Raises
-    ------
-    OutputError
-        When it cannot be written; no partial file is left.
-    """
-    path = Path(path)
-    temporary = path.with_name(path.name + ".tmp")
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        temporary.write_text(json.dumps(summary, indent=2) + "\n")
-        os.replace(temporary, path)
-    except OSError as err:
-        try:
-            temporary.unlink(missing_ok=True)
-        except OSError:  # its folder is not there either
-            pass
-        raise OutputError(f"{path}: cannot write the summary ({err.strerror or err})") from None

@@ -136,10 +136,11 @@ class PtySensor:
 def play(plan: StreamPlan, sensor: PtySensor, speed: float = 1.0, reader_timeout_s: float = 30.0,
          port_down_s: float = 0.5, drain_timeout_s: float = 10.0,
          clock: Callable[[], float] = time.monotonic, sleep: Callable[[float], None] = time.sleep,
-         opened: bool = False) -> int:
+         opened: bool = False, after_drop: Callable[[], object] | None = None) -> int:
     """Send a plan into ``sensor``: in real time divided by ``speed`` (0: as fast as possible).
 
-    ``opened``: the pty is open and its reader there already (``play_device``).
+    ``opened``: the pty is open and its reader there already (``play_device``). ``after_drop``:
+    called once the reader is back after each port drop (an emulated sensor answers it again).
 
     Returns
     -------
@@ -160,6 +161,8 @@ def play(plan: StreamPlan, sensor: PtySensor, speed: float = 1.0, reader_timeout
                 sleep(delay)
         if event.drop:
             _drop(sensor, plan, reader_timeout_s, port_down_s, drain_timeout_s, sleep)
+            if after_drop is not None:
+                after_drop()
         else:
             sensor.write(event.data)
     sensor.drain(drain_timeout_s)
@@ -169,31 +172,41 @@ def play(plan: StreamPlan, sensor: PtySensor, speed: float = 1.0, reader_timeout
 
 def play_in_thread(plan: StreamPlan | None, link: str | Path, device: EmulatedLpms | None = None,
                    columns: Mapping[str, np.ndarray] | None = None, faults: FaultPlan | None = None,
-                   **play_options) -> threading.Thread:
+                   replugs: Sequence[tuple[EmulatedLpms, Mapping[str, np.ndarray]]] = (),
+                   preroll_frames: int = 0, **play_options) -> threading.Thread:
     """Play ``plan`` into a new pseudo-terminal at ``link`` from a daemon thread (tests, in-process
     benchmarks); the port is closed and its link removed when the plan ends.
 
     With ``device``, the pty answers the host's commands first and then plays ``columns`` (with
     ``faults``) framed in the layout the host left (the thread's ``plan`` attribute holds it).
+    ``replugs``: then, for each ``(device, columns)``, the sensor is unplugged and comes back as
+    that device (its power-on state), answers the host again and plays those columns (``plans``
+    holds every plan). ``preroll_frames``: frames each power-up streams before the host talks.
     """
-    from gyronet.stream.pty_device import fill_columns, play_device
+    from gyronet.stream.pty_device import Plug, fill_columns, play_plugs
 
     sensor = PtySensor(link)
     options = {"speed": 0, "reader_timeout_s": 20, "port_down_s": 0.2, **play_options}
+
+    def plug(power_on: EmulatedLpms, values: Mapping[str, np.ndarray]) -> Plug:
+        first = {c: float(v[0]) for c, v in fill_columns(values, power_on.layout()).items()}
+        return Plug(power_on, lambda layout: plan_stream(fill_columns(values, layout), "lpbus", faults, layout),
+                    first if preroll_frames else None)
 
     def emulate() -> None:
         try:
             if device is None:
                 play(plan, sensor, **options)
             else:
-                thread.plan = play_device(device, lambda layout: plan_stream(
-                    fill_columns(columns, layout), "lpbus", faults, layout), sensor, **options)
+                thread.plans = play_plugs([plug(device, columns), *(plug(*again) for again in replugs)], sensor,
+                                          preroll_frames=preroll_frames, **options)
+                thread.plan = thread.plans[0]
         finally:
             sensor.close()
             sensor.remove_link()
 
     thread = threading.Thread(target=emulate, daemon=True)
-    thread.plan = plan
+    thread.plan, thread.plans = plan, []
     thread.start()
     return thread
 

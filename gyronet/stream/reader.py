@@ -68,7 +68,8 @@ def read_chunks(port: serial.SerialBase | None, parser: Parser, *, url: str | No
                 baud: int = DEFAULT_BAUD, timeout_s: float = 0.05,
                 should_stop: Callable[[], bool] | None = None, backoff_s: float = 0.1,
                 max_backoff_s: float = 2.0, give_up_s: float | None = None, chunk_bytes: int = 65536,
-                sleep: Callable[[float], None] = time.sleep) -> Iterator[list[Sample | Fault]]:
+                sleep: Callable[[float], None] = time.sleep,
+                on_reopen: Callable[[serial.SerialBase], None] | None = None) -> Iterator[list[Sample | Fault]]:
     """Yield, read by read, the samples and faults that the bytes arriving on ``port`` make, in order.
 
     Each read takes what is waiting (at least one byte, or nothing after ``timeout_s``; then,
@@ -79,6 +80,8 @@ def read_chunks(port: serial.SerialBase | None, parser: Parser, *, url: str | No
     or ``OSError``), a chunk of ``Fault("port_lost")`` and what flushing the parser gives (a frame
     cut by the loss is a ``truncated`` fault) is yielded, and the port is reopened from ``url``
     with exponential backoff. The parser keeps its state (CSV header, last time) across the gap.
+    A device that comes back may have been power-cycled: ``on_reopen`` sets it up (or checks it)
+    again before anything is read from the new port.
 
     Parameters
     ----------
@@ -103,15 +106,21 @@ def read_chunks(port: serial.SerialBase | None, parser: Parser, *, url: str | No
         Most bytes taken in one read (64 KiB: more than a pty or a USB serial driver buffers).
     sleep
         Waits between attempts (a test passes a fake).
+    on_reopen
+        Called with the port reopened after a loss (not the first one), before it is read; an
+        exception it raises ends the iteration (the port closed) and reaches the consumer.
     """
     stop = should_stop or (lambda: False)
     url = url or getattr(port, "port", None)
+    lost = False
     try:
         while not stop():
             if port is None:
                 port = _reopen(url, baud, timeout_s, stop, backoff_s, max_backoff_s, give_up_s, sleep)
                 if port is None:
                     return
+                if lost and on_reopen is not None:
+                    on_reopen(port)
             try:
                 data = port.read(min(max(1, port.in_waiting), chunk_bytes))
                 # and whatever else already waits (a pty hands over 4 KiB a read), never waiting for more
@@ -121,7 +130,7 @@ def read_chunks(port: serial.SerialBase | None, parser: Parser, *, url: str | No
                 log.warning("port %s lost: %s", url, err)
                 yield [Fault("port_lost", detail=str(err)[:80]), *parser.flush()]
                 _close_quietly(port)
-                port = None
+                port, lost = None, True
                 if url is None:
                     return
                 continue

@@ -7,10 +7,13 @@ what the sensor reported is written as the CSV's ``#`` metadata (``fs_hz``, ``se
 frames (CONTRACT.md section 1), each value as the shortest text that reads back to the same
 number, one ``os.write`` per line, so a kill leaves whole lines. A sensor clock that restarts (a
 replug) keeps ``time_s`` increasing: the new segment continues one interval plus ``restart_gap_s``
-after the last sample, a break in the record.
+after the last sample, a break in the record. A sensor that comes back after the port was lost is
+set up again (or its first frames checked again) before its rows are written, and refused if it is
+not the one set up at the start.
 """
 from __future__ import annotations
 
+import contextlib
 import logging
 import os
 import time
@@ -19,9 +22,12 @@ from typing import Callable, Mapping
 
 from gyronet.errors import ConfigError
 from gyronet.stream.events import FaultCounter, Sample, SampleCheck
+from gyronet.stream.lpbus_link import SensorError
+from gyronet.stream.lpbus_probe import LayoutError
 from gyronet.stream.lpbus_setup import LpBusSetup, start_lpbus
-from gyronet.stream.output import OutputError, write_summary
+from gyronet.stream.summary import OutputError, write_summary
 from gyronet.stream.reader import open_port_or_fail, read_samples
+from gyronet.stream.signals import stop_on_signals
 
 log = logging.getLogger(__name__)
 
@@ -35,11 +41,17 @@ def record_stream(port: str, output: str | Path, baud: int = 921600, lpbus: LpBu
                   stop: Callable[[], bool] | None = None) -> dict:
     """Set the sensor up, record it into ``output`` until told to stop; return the summary.
 
+    ``stop`` is polled between reads; without one, SIGINT and SIGTERM stop the recording there
+    (:func:`~gyronet.stream.signals.stop_on_signals`), so what was read is written.
+
     Raises
     ------
     PortError, SensorError, ConfigError
         Before any row: a port that cannot be opened, a sensor that does not answer or cannot be
         set up, a layout without gyro and temperature.
+    SensorError, LayoutError
+        After a replug: the sensor that came back is another one, or (listening) its first frames
+        do not fit; the rows so far stay whole and the summary (``stopped: refused``) is written.
     OutputError
         When the output cannot be written.
     """
@@ -56,14 +68,17 @@ def record_stream(port: str, output: str | Path, baud: int = 921600, lpbus: LpBu
         opened.close()
         raise
     counter, started = FaultCounter(), time.monotonic()
-    external_stop = stop or (lambda: False)
+    signals = contextlib.ExitStack()  # without ``stop``, Ctrl-C is polled too: the chunk in flight is written
+    external_stop = stop or signals.enter_context(stop_on_signals())
 
     def should_stop() -> bool:
         return external_stop() or (duration_s is not None and time.monotonic() - started >= duration_s)
 
-    items = read_samples(opened, start.parser(SampleCheck(**dict(clock or {}))), url=port, baud=baud,
-                         timeout_s=read_timeout_s, should_stop=should_stop, **dict(reconnect or {}))
+    parser = start.parser(SampleCheck(**dict(clock or {})))
+    items = read_samples(opened, parser, url=port, baud=baud, timeout_s=read_timeout_s, should_stop=should_stop,
+                         on_reopen=start.reopen_hook(parser, port), **dict(reconnect or {}))
     stopped, offset_s, last_s, interval_s, restarts = "port_gone", 0.0, None, 0.0, 0
+    refusal: Exception | None = None
     try:
         for item in items:
             counter.add(item)
@@ -86,14 +101,20 @@ def record_stream(port: str, output: str | Path, baud: int = 921600, lpbus: LpBu
             stopped = "interrupted" if external_stop() else "duration" if should_stop() else "port_gone"
     except KeyboardInterrupt:
         stopped = "interrupted"
+    except (SensorError, LayoutError) as err:  # after a replug: another sensor, or frames that do not fit
+        stopped, refusal = "refused", err
     finally:
         items.close()
         out.close()
+        signals.close()
     summary = {"stopped": stopped, "n_samples": out.n_rows, "faults": counter.as_dict(), "n_faults": counter.n_faults,
-               "clock_restarts": restarts, "output": str(out.path), "sensor": start.as_dict()}
+               "clock_restarts": restarts, "output": str(out.path), "sensor": start.as_dict(),
+               **({"refused": str(refusal)} if refusal is not None else {})}
     log.info("recorded %d samples into %s (%s); %s", out.n_rows, out.path, stopped, counter.summary())
     if summary_path is not None:
         write_summary(summary_path, summary)
+    if refusal is not None:
+        raise refusal
     return summary
 
 

@@ -1,0 +1,167 @@
+"""Issue 13, a replug: the sensor comes back power-cycled on a new pty (the emulator's ``replugs``); the
+live path and record.py set it up again, or check its first frames again, or refuse it by name."""
+import logging
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from gyronet.data import GYRO_COLUMNS, load_recording
+from gyronet.stream.lpbus_device import EmulatedLpms
+from gyronet.stream.lpbus_link import SensorError
+from gyronet.stream.lpbus_probe import LayoutError
+from gyronet.stream.lpbus_setup import LpBusSetup
+from gyronet.stream.pty_sensor import play_in_thread
+from test_lpbus_live import FAST, N_SAMPLES, offline, power_on, short_recording, started  # noqa: F401 (fixture)
+
+SPLIT = N_SAMPLES // 2
+
+
+def halves(path):
+    """The recording cut in two, the second half's clock from 0 again (a power-cycled sensor)."""
+    columns = load_recording(path).columns
+    first = {c: np.asarray(v)[:SPLIT] for c, v in columns.items()}
+    second = {c: np.asarray(v)[SPLIT:] for c, v in columns.items()}
+    second["time_s"] = second["time_s"] - second["time_s"][0]
+    return first, second
+
+
+def run_live(bundle, link, tmp_path, lpbus, **options):
+    from gyronet.stream.live import run_stream
+
+    return run_stream(bundle, str(link), tmp_path / "live.csv", allan_every_s=0, reconnect=FAST, resample=True,
+                      lpbus=lpbus, **options)
+
+
+def test_a_power_cycled_sensor_is_set_up_again_and_live_equals_offline_per_segment(bundle, short_recording,
+                                                                                   tmp_path, caplog):
+    first, second = halves(short_recording)
+    again = power_on("LPMS-CU2")  # back with its power-on outputs, 16-bit, auto-calibration on
+    link = tmp_path / "sensor"
+    thread = started(play_in_thread(None, link, device=power_on("LPMS-CU2"), columns=first,
+                                    replugs=[(again, second)], preroll_frames=3), link)
+    with caplog.at_level(logging.INFO, logger="gyronet.stream.lpbus_setup"):
+        summary = run_live(bundle, link, tmp_path, LpBusSetup(configure=True, timeout_s=2.0))
+    thread.join(10)
+    assert again.commands[0] == 6 and again.commands[-1] == 7  # the host talked to the sensor that came back
+    assert not again.gyro_autocalibration and again.precision == 32
+    reopened = [r.getMessage() for r in caplog.records if "reopened" in r.getMessage()]
+    assert len(reopened) == 1 and "LPMS-CU2 set up again: outputs" in reopened[0]
+    assert "gyro auto-calibration off" in reopened[0]
+    assert summary["faults"] == {"port_lost": 2} and summary["clock_restarts"] == 1
+    live = pd.read_csv(tmp_path / "live.csv", comment="#")
+    assert len(live) == N_SAMPLES
+    for rows, columns, plan in [(live[:SPLIT], first, thread.plans[0]), (live[SPLIT:], second, thread.plans[1])]:
+        inputs, out = offline(bundle, columns, plan, again.layout())  # each segment from the power-on state
+        np.testing.assert_array_equal(rows["time_s"].to_numpy(), inputs["time_s"])
+        np.testing.assert_allclose(rows[list(GYRO_COLUMNS)].to_numpy(), out.rate_dps, rtol=0, atol=1e-9)
+
+
+def test_another_sensor_behind_the_reopened_port_ends_the_run_by_name(bundle, short_recording, tmp_path):
+    first, second = halves(short_recording)
+    link = tmp_path / "sensor"
+    started(play_in_thread(None, link, device=power_on("LPMS-CU2"), columns=first,
+                           replugs=[(power_on("LPMS-IG1-RS232"), second)]), link)
+    with pytest.raises(SensorError, match=r"not the one set up at the start: sensor ig1 LPMS-IG1-RS232, firmware "
+                                          r"v2\.0\.5, not legacy LPMS-CU2, firmware 2\.0\.5; frames .*GET_IMU_TRANS"):
+        run_live(bundle, link, tmp_path, LpBusSetup(configure=True, timeout_s=2.0))
+    assert len(pd.read_csv(tmp_path / "live.csv", comment="#")) == SPLIT  # what came before, kept whole
+
+
+def test_a_listening_run_checks_the_first_frames_again_after_a_reopen(bundle, short_recording, tmp_path):
+    """Legacy gyro + acc + temperature, then an IG1 sending acc + gyro + temperature: the same frame length."""
+    first, second = halves(short_recording)
+    legacy = EmulatedLpms(model="LPMS-CU2", fields=("gyro", "acc", "temperature"), precision=32, rate_hz=100)
+    ig1 = EmulatedLpms(model="LPMS-IG1-RS232", fields=("acc", "gyro", "temperature"), precision=32, rate_hz=100)
+    link = tmp_path / "sensor"
+    started(play_in_thread(None, link, device=legacy, columns=first, replugs=[(ig1, second)],
+                           command_wait_s=0.2), link)
+    with pytest.raises(LayoutError, match=r"sensor, reopened: the first 20 frames do not read as .*register bits "
+                                          r"legacy 11, 12, 13\).*1 g"):
+        run_live(bundle, link, tmp_path, LpBusSetup(configure=False))
+    assert len(pd.read_csv(tmp_path / "live.csv", comment="#")) == SPLIT
+
+
+def test_record_sets_a_power_cycled_sensor_up_again(short_recording, tmp_path):
+    from gyronet.stream.record import record_stream
+
+    first, second = halves(short_recording)
+    for columns in (first, second):
+        columns["time_s"] = np.arange(len(columns["time_s"])) / 100.0  # played at the rate the sensor is set to
+    again = power_on("LPMS-BE1")
+    link = tmp_path / "sensor"
+    thread = started(play_in_thread(None, link, device=power_on("LPMS-BE1"), columns=first,
+                                    replugs=[(again, second)]), link)
+    summary = record_stream(str(link), tmp_path / "run.csv", lpbus=LpBusSetup(configure=True, rate_hz=100),
+                            reconnect=FAST)
+    thread.join(10)
+    saved = load_recording(tmp_path / "run.csv")
+    assert summary["n_samples"] == len(saved) == N_SAMPLES and summary["clock_restarts"] == 1
+    assert again.rate_hz == 100 and not again.gyro_autocalibration
+    layout = again.layout()
+    np.testing.assert_array_equal(saved.columns["temp_c"][SPLIT:],
+                                  [layout.quantize({c: float(second[c][i]) for c in layout.columns
+                                                    if c in second})["temp_c"] for i in range(SPLIT)])
+    assert np.all(np.diff(saved.columns["time_s"]) > 0)
+
+
+def test_a_link_drop_without_a_power_cycle_is_set_up_again_with_nothing_to_change(bundle, short_recording, tmp_path,
+                                                                                    caplog):
+    from gyronet.stream import FaultPlan
+
+    recording = load_recording(short_recording)
+    device = power_on("LPMS-CU2")
+    link = tmp_path / "sensor"
+    thread = started(play_in_thread(None, link, device=device, columns=recording.columns,
+                                    faults=FaultPlan(drop_port_at_s=(50.0,))), link)
+    with caplog.at_level(logging.INFO, logger="gyronet.stream.lpbus_setup"):
+        summary = run_live(bundle, link, tmp_path, LpBusSetup(configure=True, timeout_s=2.0))
+    thread.join(10)
+    assert "LPMS-CU2 set up again: it had kept its settings" in caplog.text
+    assert summary["n_samples"] == N_SAMPLES and summary["faults"] == {"port_lost": 2}
+    assert device.commands.count(6) == 2 and device.commands[-1] == 7
+
+
+def test_record_refuses_another_sensor_after_a_replug_and_still_writes_its_summary(short_recording, tmp_path):
+    import json
+
+    from gyronet.stream.record import record_stream
+
+    first, second = halves(short_recording)
+    for columns in (first, second):
+        columns["time_s"] = np.arange(len(columns["time_s"])) / 100.0
+    link = tmp_path / "sensor"
+    started(play_in_thread(None, link, device=power_on("LPMS-CU2"), columns=first,
+                           replugs=[(power_on("LPMS-B2"), second)]), link)
+    with pytest.raises(SensorError, match=r"sensor legacy LPMS-B2, firmware 2\.0\.5, not legacy LPMS-CU2"):
+        record_stream(str(link), tmp_path / "run.csv", lpbus=LpBusSetup(configure=True, rate_hz=100),
+                      reconnect=FAST, summary_path=tmp_path / "s.json")
+    summary = json.loads((tmp_path / "s.json").read_text())
+    assert summary["stopped"] == "refused" and "LPMS-B2" in summary["refused"]
+    assert summary["n_samples"] == len(load_recording(tmp_path / "run.csv")) == SPLIT
+
+
+def test_ctrl_c_without_a_stop_poll_still_writes_the_chunk_in_flight(tmp_path, monkeypatch):
+    """record_stream called from Python (no ``stop``): SIGINT at the 10th row of a 25-sample read."""
+    import os
+    import signal
+
+    from gyronet.stream import Sample
+    from gyronet.stream import record
+
+    values = {"gyro_x_dps": 0.1, "gyro_y_dps": 0.2, "gyro_z_dps": 0.3, "acc_x_g": 0.0, "acc_y_g": 0.0,
+              "acc_z_g": 1.0, "temp_c": 30.0}
+
+    def two_reads(port, parser, *, should_stop, **options):
+        for read in range(2):
+            if should_stop():
+                return
+            for i in range(25):
+                if read == 0 and i == 10:
+                    os.kill(os.getpid(), signal.SIGINT)
+                yield Sample(0.01 * (25 * read + i), values)
+
+    monkeypatch.setattr(record, "read_samples", two_reads)
+    summary = record.record_stream("loop://", tmp_path / "run.csv", lpbus=LpBusSetup(configure=False))
+    assert summary["stopped"] == "interrupted" and summary["n_samples"] == 25
+    assert len(load_recording(tmp_path / "run.csv")) == 25
