@@ -106,6 +106,8 @@ class ChunkWriter:
             self.clock_restarts += 1
             if self.allan is not None:
                 self.allan.new_segment(first.time_s)
+        if len(samples) == 1 and self._one(first):
+            return
         columns = {"time_s": np.array([sample.time_s for sample in samples])}
         for name in self.columns[1:]:
             columns[name] = np.array([sample.values[name] for sample in samples])
@@ -113,6 +115,20 @@ class ChunkWriter:
         for rows in (slice(0, split), slice(split, n)):
             if rows.stop > rows.start:
                 self._compensate({name: values[rows] for name, values in columns.items()})
+
+    def _one(self, sample: Sample) -> bool:
+        """A lone frame in plain floats (``Compensator.process_row``); False where that does not apply."""
+        row = self.compensator.process_row(sample.time_s, sample.values)
+        if row is None:
+            return False
+        temp_c = sample.values["temp_c"]
+        self.out.write_row(sample.time_s, row.rate_dps, temp_c, row.out_of_range, row.bad_input)
+        if row.out_of_range:
+            self.n_out_of_range += 1
+            log.debug("temp_c=%.3f at %.3f s outside the trained range", temp_c, sample.time_s)
+        if self.allan is not None:
+            self.allan.add(sample.time_s, row.rate_dps)
+        return True
 
     def _startup_end(self, time_s: np.ndarray) -> int:
         """How many of these samples fall in a start-up window still open (0 when none is)."""

@@ -98,6 +98,7 @@ def run_stream(bundle_dir: str | Path, port: str, output: str | Path, protocol: 
     options = dict(reconnect or {})
     wait_at_start = bool(options.pop("wait_at_start", False))
     compensator = Compensator.load(bundle_dir)
+    compensator.use_small_chunks()  # a lone frame in plain floats, not ~30 TorchScript ops
     compensator.use_startup(**dict(startup or {}))
     compensator.reset()
     check = SampleCheck(**dict(clock or {}))

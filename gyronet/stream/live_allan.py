@@ -55,7 +55,7 @@ class LiveAllan:
         self._shift_s = 0.0  # added to the sensor's time: a restarted clock continues after a break
         self._last_s: float | None = None
         self._bin = -1
-        self._sum = np.zeros(3)
+        self._sum: list | np.ndarray = [0.0, 0.0, 0.0]  # of the open bin
         self._count = 0
         self.next_s: float | None = None
         self.last: dict[str, dict[str, float | None]] = {}
@@ -71,8 +71,8 @@ class LiveAllan:
         """Mean compensated rate of each completed bin, (n, 3), deg/s."""
         return self._rate_dps[:self._n]
 
-    def add(self, time_s: float, rate_dps: np.ndarray) -> None:
-        """Add a sample; report when ``every_s`` of data has passed since the last report."""
+    def add(self, time_s: float, rate_dps) -> None:
+        """Add a sample (3 rates, deg/s) in plain floats; report when ``every_s`` of data has passed since the last report."""
         time_s = time_s + self._shift_s
         if self._start_s is None:
             self._start_s = float(time_s)
@@ -84,7 +84,9 @@ class LiveAllan:
         if index != self._bin:
             self._close_bin()
             self._bin = index
-        self._sum += np.asarray(rate_dps, dtype=np.float64).reshape(3)
+        x, y, z = rate_dps
+        total = self._sum
+        self._sum = [total[0] + x, total[1] + y, total[2] + z]
         self._count += 1
         if time_s >= self.next_s:
             self.report(step=int(round(time_s - self._start_s)))
@@ -122,8 +124,8 @@ class LiveAllan:
     def _close_bin(self) -> None:
         if self._count == 0:
             return
-        self._append(np.array([self._bin]), (self._sum / self._count)[None])
-        self._sum = np.zeros(3)
+        self._append(np.array([self._bin]), (np.asarray(self._sum, dtype=np.float64) / self._count)[None])
+        self._sum = [0.0, 0.0, 0.0]
         self._count = 0
 
     def _add_to_bins(self, time_s: np.ndarray, rate_dps: np.ndarray) -> None:

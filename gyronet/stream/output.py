@@ -66,6 +66,12 @@ class LiveWriter:
         values = zip(*(columns[name].tolist() for name in self.names))
         self._write(((line * n) % tuple(itertools.chain.from_iterable(values))).encode("ascii"), n)
 
+    def write_row(self, time_s: float, rate_dps: list, temp_c: float, out_of_range: bool, bad_input: bool) -> None:
+        """One compensated sample in plain floats: the line ``write`` makes for it, in one ``os.write``."""
+        x, y, z = rate_dps
+        self._write(b"%r,%r,%r,%r,%r,%d,%d\n" % (float(time_s), float(x), float(y), float(z), float(temp_c),
+                                                   out_of_range, bad_input), 1)
+
     def _write(self, data: bytes, n_rows: int) -> None:
         if self._fd is None:
             raise OutputError(f"{self.path}: the output is closed")
