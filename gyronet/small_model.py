@@ -18,7 +18,7 @@ from typing import Callable
 import numpy as np
 import torch
 
-SMALL_ROWS = 4  # chunks up to this many rows go row by row in floats (past it one TorchScript call is cheaper)
+SMALL_ROWS = 8  # chunks up to this many rows go row by row in floats (past it one TorchScript call is cheaper)
 
 RowModel = Callable[[list], list]  # one row of features -> drift per axis, deg/s
 

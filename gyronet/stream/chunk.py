@@ -17,6 +17,7 @@ from typing import Sequence
 import numpy as np
 
 from gyronet.compensator import Compensator
+from gyronet.small_model import SMALL_ROWS
 from gyronet.stream.events import Sample
 from gyronet.stream.live_allan import LiveAllan
 from gyronet.stream.output import LiveWriter
@@ -106,8 +107,10 @@ class ChunkWriter:
             self.clock_restarts += 1
             if self.allan is not None:
                 self.allan.new_segment(first.time_s)
-        if len(samples) == 1 and self._one(first):
+        done = self._in_floats(samples) if len(samples) <= SMALL_ROWS else 0
+        if done == len(samples):
             return
+        samples = samples[done:]
         columns = {"time_s": np.array([sample.time_s for sample in samples])}
         for name in self.columns[1:]:
             columns[name] = np.array([sample.values[name] for sample in samples])
@@ -116,19 +119,25 @@ class ChunkWriter:
             if rows.stop > rows.start:
                 self._compensate({name: values[rows] for name, values in columns.items()})
 
-    def _one(self, sample: Sample) -> bool:
-        """A lone frame in plain floats (``Compensator.process_row``); False where that does not apply."""
-        row = self.compensator.process_row(sample.time_s, sample.values)
-        if row is None:
-            return False
-        temp_c = sample.values["temp_c"]
-        self.out.write_row(sample.time_s, row.rate_dps, temp_c, row.out_of_range, row.bad_input)
-        if row.out_of_range:
-            self.n_out_of_range += 1
-            log.debug("temp_c=%.3f at %.3f s outside the trained range", temp_c, sample.time_s)
-        if self.allan is not None:
-            self.allan.add(sample.time_s, row.rate_dps)
-        return True
+    def _in_floats(self, samples: Sequence[Sample]) -> int:
+        """A few frames (a lone one, a short backlog) in plain floats (``Compensator.process_row``), written in one
+        go; returns how many: it stops at the first where that does not apply (the rest go as arrays)."""
+        rows = []
+        for sample in samples:
+            row = self.compensator.process_row(sample.time_s, sample.values)
+            if row is None:
+                break
+            temp_c = sample.values["temp_c"]
+            rows.append((sample.time_s, row.rate_dps, temp_c, row.out_of_range, row.bad_input))
+            if row.out_of_range:
+                self.n_out_of_range += 1
+                log.debug("temp_c=%.3f at %.3f s outside the trained range", temp_c, sample.time_s)
+        if rows:
+            self.out.write_rows(rows)
+            if self.allan is not None:
+                for time_s, rate_dps, *_ in rows:
+                    self.allan.add(time_s, rate_dps)
+        return len(rows)
 
     def _startup_end(self, time_s: np.ndarray) -> int:
         """How many of these samples fall in a start-up window still open (0 when none is)."""

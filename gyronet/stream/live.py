@@ -16,9 +16,11 @@ sensor's own times, so each segment equals ``compensate.py`` on that segment's s
 from __future__ import annotations
 
 import contextlib
+import gc
 import importlib
 import logging
 import signal
+import sys
 import threading
 import time
 from pathlib import Path
@@ -120,7 +122,8 @@ def run_stream(bundle_dir: str | Path, port: str, output: str | Path, protocol: 
             opened.close()
         raise
     writer = _tb_writer(tb_dir) if tb_dir is not None and allan_every_s > 0 else None
-    allan = LiveAllan(writer, allan_every_s, float(compensator.meta["fs_hz"])) if allan_every_s > 0 else None
+    allan = LiveAllan(writer, allan_every_s, float(compensator.meta["fs_hz"]), background=True) \
+        if allan_every_s > 0 else None
     counter = FaultCounter()
     started = time.monotonic()
     stopped, failure = "port_gone", None
@@ -137,12 +140,13 @@ def run_stream(bundle_dir: str | Path, port: str, output: str | Path, protocol: 
     sink = ChunkWriter(compensator, out, allan, port, max_samples)
     try:
         try:
-            for chunk in chunks:
-                if sink.write(_good_samples(chunk, counter, gate, sink)):
-                    stopped = "max_samples"
-                    break
-            else:
-                stopped = "interrupted" if external_stop() else "duration" if should_stop() else "port_gone"
+            with _steady_runtime():
+                for chunk in chunks:
+                    if sink.write(_good_samples(chunk, counter, gate, sink)):
+                        stopped = "max_samples"
+                        break
+                else:
+                    stopped = "interrupted" if external_stop() else "duration" if should_stop() else "port_gone"
         except KeyboardInterrupt:
             stopped = "interrupted"
         sink.write(gate.flush())  # the samples held while the rate was measured
@@ -181,6 +185,22 @@ def _good_samples(chunk: list, counter: FaultCounter, gate: RateGate, sink: Chun
         if room is not None and len(ready) >= room:
             break  # what follows is not read, as when the run stopped right after this sample
     return ready
+
+
+@contextlib.contextmanager
+def _steady_runtime(switch_interval_s: float = 2e-4) -> Iterator[None]:
+    """The sample loop without the interpreter's stalls: the set-up's objects (torch, the bundle: hundreds of
+    thousands) frozen out of the garbage collector, whose full passes over them took milliseconds, and a short
+    GIL switch interval, so a frame waits at most that long for the Allan worker thread (5 ms by default)."""
+    gc.collect()
+    gc.freeze()
+    previous_s = sys.getswitchinterval()
+    sys.setswitchinterval(switch_interval_s)
+    try:
+        yield
+    finally:
+        sys.setswitchinterval(previous_s)
+        gc.unfreeze()
 
 
 @contextlib.contextmanager

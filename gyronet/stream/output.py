@@ -23,6 +23,10 @@ from gyronet.offline import output_columns
 log = logging.getLogger(__name__)
 
 
+# one output line from floats, in output_names() order (a test checks it against write's)
+_ROW = b"%r,%r,%r,%r,%r,%d,%d\n"
+
+
 class OutputError(GyronetError):
     """The output (or the summary) cannot be written: a full disk, a folder that is not writable."""
 
@@ -66,11 +70,11 @@ class LiveWriter:
         values = zip(*(columns[name].tolist() for name in self.names))
         self._write(((line * n) % tuple(itertools.chain.from_iterable(values))).encode("ascii"), n)
 
-    def write_row(self, time_s: float, rate_dps: list, temp_c: float, out_of_range: bool, bad_input: bool) -> None:
-        """One compensated sample in plain floats: the line ``write`` makes for it, in one ``os.write``."""
-        x, y, z = rate_dps
-        self._write(b"%r,%r,%r,%r,%r,%d,%d\n" % (float(time_s), float(x), float(y), float(z), float(temp_c),
-                                                   out_of_range, bad_input), 1)
+    def write_rows(self, rows: list[tuple[float, list, float, bool, bool]]) -> None:
+        """A few compensated samples in plain floats, each (time_s, 3 rates, temp_c, out_of_range, bad_input):
+        the lines ``write`` makes for them, in one ``os.write``."""
+        self._write(b"".join([_ROW % (float(t), float(x), float(y), float(z), float(temp_c), out_of_range, bad_input)
+                              for t, (x, y, z), temp_c, out_of_range, bad_input in rows]), len(rows))
 
     def _write(self, data: bytes, n_rows: int) -> None:
         if self._fd is None:
