@@ -3,7 +3,10 @@
 A chunk is every good sample that one read of the port completed (one sample when frames arrive
 one by one, hundreds in a flood). It goes through ``Compensator.process`` in one call, is written
 in one ``os.write`` and enters the live Allan monitor in one step, so a flood costs one model
-call per read instead of one per sample, and a lone frame is still answered at once. The
+call per read instead of one per sample, and a lone frame is still answered at once. A chunk of
+at most ``SMALL_ROWS`` samples (a lone frame at 1 kHz, a short backlog) goes sample by sample in
+plain floats instead (``Compensator.process_row``, ``gyronet.small_model``): there the fixed cost
+of each array and TorchScript call, not the arithmetic, was the time (343 us of CPU a frame). The
 compensator keeps its state across calls, so the numbers equal ``compensate.py`` on the same
 samples however they were chunked. A chunk is split where the sensor clock restarted (the filters
 restart there) and where the start-up window ends (so that motion in the window stops the run

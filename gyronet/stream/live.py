@@ -2,12 +2,12 @@
 
 Every read of the port is one chunk: the good samples it completed go through
 ``Compensator.process`` together, the same causal code the offline path runs on a whole file, so
-the output equals ``compensate.py`` on the good samples, and a lone frame is answered at once
-(:mod:`.chunk`). The output has the offline columns (``time_s``, compensated ``gyro_*_dps``,
+the output equals ``compensate.py`` on the good samples (to rounding: a chunk of a few samples
+runs in plain floats, not TorchScript), and a lone frame is answered at once (:mod:`.chunk`). The output has the offline columns (``time_s``, compensated ``gyro_*_dps``,
 ``temp_c``, ``out_of_range``) and a chunk's lines are on disk before the next read
 (:mod:`.output`). Faults are counted by reason; the Allan terms of the compensated rate (N and B
-per axis) go to TensorBoard every ``allan_every_s`` of data, and the Allan curves as a figure
-when the run stops (:mod:`.live_allan`).
+per axis) go to TensorBoard every ``allan_every_s`` of data, computed in a worker thread so that
+no frame waits for one, and the Allan curves as a figure when the run stops (:mod:`.live_allan`).
 
 A sensor clock that restarts (a replug: time goes back, or jumps far ahead) starts a new segment:
 the compensator restarts from its power-on state, as the sensor did, and the output keeps the
@@ -110,6 +110,10 @@ def run_stream(bundle_dir: str | Path, port: str, output: str | Path, protocol: 
     if tb_dir is not None and allan_every_s > 0:
         # seconds of imports: done before the port opens, when the sensor's first frames would wait for them
         importlib.import_module("torch.utils.tensorboard")
+    # the set-up's objects (torch, the bundle: hundreds of thousands) out of the garbage collector, whose full
+    # passes over them took milliseconds in the sample loop; collected first, before the port opens (~0.1 s)
+    gc.collect()
+    gc.freeze()
     opened = None if wait_at_start else open_port_or_fail(
         port, baud, read_timeout_s, hint="; pass reconnect.wait_at_start=true to wait for it")
     sensor = None
@@ -189,11 +193,8 @@ def _good_samples(chunk: list, counter: FaultCounter, gate: RateGate, sink: Chun
 
 @contextlib.contextmanager
 def _steady_runtime(switch_interval_s: float = 2e-4) -> Iterator[None]:
-    """The sample loop without the interpreter's stalls: the set-up's objects (torch, the bundle: hundreds of
-    thousands) frozen out of the garbage collector, whose full passes over them took milliseconds, and a short
-    GIL switch interval, so a frame waits at most that long for the Allan worker thread (5 ms by default)."""
-    gc.collect()
-    gc.freeze()
+    """The sample loop with a short GIL switch interval, so that a frame waits at most that long for the Allan
+    worker thread (5 ms by default); on exit, the objects ``run_stream`` froze go back to the collector."""
     previous_s = sys.getswitchinterval()
     sys.setswitchinterval(switch_interval_s)
     try:
