@@ -45,7 +45,7 @@ def row_model(module: torch.nn.Module) -> RowModel | None:
 
 
 def _rbf(module: torch.nn.Module, state: dict[str, np.ndarray]) -> RowModel:
-    """``RBFNet.forward`` (gyronet.model), operation for operation."""
+    """``RBFNet.forward`` (gyronet.model), to rounding: its three output layers summed as one."""
     mean, std, low, high = (state[k].tolist() for k in ("x_mean", "x_std", "z_low", "z_high"))
     y_mean, y_std = state["y_mean"].tolist(), state["y_std"].tolist()
     rbf_index, centers = state["rbf_index"].astype(int).tolist(), state["centers"].tolist()
@@ -57,7 +57,8 @@ def _rbf(module: torch.nn.Module, state: dict[str, np.ndarray]) -> RowModel:
     linear, poly = state["linear.weight"].tolist(), state["poly.weight"].tolist()
     clamp, temp, degree = bool(module.clamp), int(module.temp_index), int(module.temp_degree)
     exponents = list(range(2, max(degree, 2) + 1))
-    outputs = list(zip(head, head_bias, linear, poly, y_std, y_mean))
+    # per axis: the head, linear and polynomial weights side by side (one sum per axis, not three)
+    outputs = [(h + lin + p, b, s, m) for h, b, lin, p, s, m in zip(head, head_bias, linear, poly, y_std, y_mean)]
     units = list(zip(centers, width_sq))
     single = len(rbf_index) == 1
     units_1 = [(center[0], w_sq) for center, w_sq in units] if single else []
@@ -74,9 +75,8 @@ def _rbf(module: torch.nn.Module, state: dict[str, np.ndarray]) -> RowModel:
             phi = [exp((r[0] - c) ** 2 * -0.5 / w_sq) for c, w_sq in units_1]
         else:
             phi = [exp(sum([(a - c) ** 2 for a, c in zip(r, center)]) * -0.5 / w_sq) for center, w_sq in units]
-        powers = [zc[temp] ** k for k in exponents]
-        return [(sum(map(mul, phi, h)) + b + sum(map(mul, z, lin)) + sum(map(mul, powers, p))) * s + m
-                for h, b, lin, p, s, m in outputs]
+        basis = phi + z + [zc[temp] ** k for k in exponents]
+        return [(sum(map(mul, basis, weights)) + b) * s + m for weights, b, s, m in outputs]
 
     return forward
 
