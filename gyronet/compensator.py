@@ -21,6 +21,7 @@ from gyronet.errors import BundleError, GyronetError
 from gyronet.export import read_bundle
 from gyronet.features import FeatureExtractor
 from gyronet.guard import GYRO_RANGE_DPS, bad_gyro
+from gyronet.small_model import SMALL_ROWS, row_model
 
 log = logging.getLogger(__name__)
 
@@ -40,6 +41,15 @@ class Compensated(NamedTuple):
     # (n,) bool: an impossible input (temperature or gyro, gyronet.guard) kept out of every filter's
     # state; None (older callers) means none
     bad_input: np.ndarray | None = None
+
+
+class CompensatedRow(NamedTuple):
+    """Output of ``Compensator.process_row`` for one sample, in plain floats."""
+
+    rate_dps: list  # 3 compensated (and filtered) rates
+    drift_dps: list  # 3 drift estimates
+    out_of_range: bool
+    bad_input: bool
 
 
 class Compensator:
@@ -62,8 +72,9 @@ class Compensator:
         self.input_columns = list(dict.fromkeys([*self.extractor.columns, *GYRO_COLUMNS]))
         self.n_out_of_range = 0
         self.n_bad_input = 0  # rows flagged ``bad_input`` since reset()
-        self._last_rate_dps: np.ndarray | None = None  # the last output row: what a bad gyro value becomes
+        self._last_rate_dps: np.ndarray | list | None = None  # the last output row: what a bad gyro value becomes
         self.startup = None  # gyronet.startup.StartupOffset: the run's offset from its first still seconds
+        self._row_model = None  # the model on one row of floats, for chunks of a few rows (use_small_chunks)
 
     @classmethod
     def load(cls, bundle_dir: str | Path) -> "Compensator":
@@ -72,6 +83,23 @@ class Compensator:
         compensator = cls(bundle.model, bundle.meta, bundle.kalman, source=bundle_dir)
         check_model(bundle.model, bundle.facts, compensator.meta, str(bundle_dir))
         return compensator
+
+    def use_small_chunks(self, model: torch.nn.Module | None = None) -> bool:
+        """Evaluate chunks of up to ``SMALL_ROWS`` rows in plain floats (``gyronet.small_model``), not TorchScript.
+
+        The live path's choice: one frame costs a few microseconds instead of ~30 TorchScript ops;
+        the result equals TorchScript to rounding, not to the bit, so ``compensate.py`` keeps
+        TorchScript. ``model`` is the unfrozen model (default: read from the bundle this was
+        loaded from). Returns False, and changes nothing, for a model class it does not know.
+        """
+        if model is None:
+            from gyronet.export import load_unfrozen
+
+            if not Path(self.source).is_dir():
+                raise BundleError(f"{self.source}: not loaded from a bundle folder; pass the unfrozen model")
+            model = load_unfrozen(self.source)
+        self._row_model = row_model(model)
+        return self._row_model is not None
 
     def use_input_rate(self, fs_hz: float, resample: bool, source: str) -> None:
         """Run at the data's sampling rate ``fs_hz``, or refuse a rate the bundle was not trained at.
@@ -131,7 +159,10 @@ class Compensator:
 
     def drift(self, columns: Mapping[str, np.ndarray]) -> np.ndarray:
         """Drift estimate (n, 3), deg/s, advancing the feature state."""
-        features = torch.from_numpy(self.extractor.process(columns))
+        features = self.extractor.process(columns)
+        if self._row_model is not None and len(features) <= SMALL_ROWS:
+            return np.array([self._row_model(row) for row in features.tolist()], dtype=np.float64).reshape(-1, 3)
+        features = torch.from_numpy(features)
         with torch.no_grad():
             if len(features) <= CHUNK_ROWS:
                 return self.model(features).numpy()
@@ -167,6 +198,30 @@ class Compensator:
         self.n_out_of_range += int(out_of_range.sum())
         self.n_bad_input += int(np.count_nonzero(bad_input))
         return Compensated(rate_dps, drift_dps, out_of_range, bad_input)
+
+    def process_row(self, time_s: float, values: Mapping[str, float]) -> CompensatedRow | None:
+        """``process`` on one sample in plain floats (``values``: every input column but ``time_s``), the live
+        path's one-frame chunk without arrays; the same numbers to rounding. None, with nothing changed,
+        where it does not apply (no ``use_small_chunks`` model, a start-up window still open, a gyro value
+        out of range): ``process`` it then."""
+        if self._row_model is None or (self.startup is not None and not self.startup.done):
+            return None
+        gyro_dps = [values[c] for c in GYRO_COLUMNS]
+        if not all(abs(v) <= GYRO_RANGE_DPS for v in gyro_dps):  # NaN compares False
+            return None
+        features, rejected = self.extractor.process_row(time_s, values)
+        drift_dps = self._row_model(features)
+        rate_dps = [g - d for g, d in zip(gyro_dps, drift_dps)]
+        if self.startup is not None:
+            rate_dps = [r - o for r, o in zip(rate_dps, self.startup.offset_dps.tolist())]
+        if self.kalman is not None:
+            rate_dps = self.kalman.process(np.array([rate_dps]))[0].tolist()
+        self._last_rate_dps = rate_dps
+        temp_c = values["temp_c"]
+        out_of_range = temp_c < self.temp_range_c[0] or temp_c > self.temp_range_c[1]
+        self.n_out_of_range += out_of_range
+        self.n_bad_input += rejected
+        return CompensatedRow(rate_dps, drift_dps, out_of_range, rejected)
 
     def _filtered(self, rate_dps: np.ndarray, bad_dps: np.ndarray) -> np.ndarray:
         """The Kalman stage (if any) on the compensated rate, bad values replaced by the last output."""

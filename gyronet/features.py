@@ -123,6 +123,7 @@ class FeatureExtractor:
         self.fs_hz = float(fs_hz)
         self.dt_s = 1.0 / self.fs_hz
         self.columns = required_columns(self.specs)
+        self._row_columns = [k for k in self.columns if k != "time_s"]
         self._filters: dict[int, Any] = {}
         self._play: dict[int, float] = {}
         self._time_index = [i for i, s in enumerate(self.specs) if s["kind"] == "time"]
@@ -133,7 +134,7 @@ class FeatureExtractor:
         """Forget the past, as at power-on."""
         self._last_time_s: float | None = None  # of the last accepted row
         self._start_time_s: float | None = None
-        self._last_row: np.ndarray | None = None  # features of the last accepted row
+        self._last_row: list[float] | None = None  # features of the last accepted row
         self.guard.reset()
         self.rejected = np.zeros(0, dtype=bool)
         self.n_rejected = 0
@@ -166,7 +167,7 @@ class FeatureExtractor:
             self.rejected = np.zeros(0, dtype=bool)
             return out
         if n == 1:
-            return self._process_one(float(time_s[0]), {k: float(columns[k][0]) for k in self.columns if k != "time_s"})
+            return self._process_one(float(time_s[0]), {k: float(columns[k][0]) for k in self._row_columns})
         if self._start_time_s is None:
             self._start_time_s = float(time_s[0])
         source = {k: np.asarray(columns[k], dtype=np.float64) for k in self.columns if k != "time_s"}
@@ -189,24 +190,34 @@ class FeatureExtractor:
 
     def _process_one(self, time_s: float, values: dict[str, float]) -> np.ndarray:
         """``process`` for one live sample, in plain floats: the same operations as a block."""
+        row, rejected = self.process_row(time_s, values)
+        self.rejected = np.array([rejected])
+        return np.array([row])
+
+    def process_row(self, time_s: float, values: Mapping[str, float]) -> tuple[list[float], bool]:
+        """One sample in plain floats (``values``: at least ``self.columns`` but ``time_s``): its features and
+        whether it was rejected. ``process`` on a one-row chunk, without arrays (``self.rejected`` is not set)."""
         if self._start_time_s is None:
             self._start_time_s = time_s
-        valid = in_sensor_range(values["temp_c"]) and all(math.isfinite(v) for v in values.values())
-        accepted, step = self.guard.step(time_s, values["temp_c"], valid)
+        temp_c = values["temp_c"]
+        valid = in_sensor_range(temp_c) and all(math.isfinite(values[k]) for k in self._row_columns)
+        accepted, step = self.guard.step(time_s, temp_c, valid)
         if accepted:
             gap_s = None if self._last_time_s is None else time_s - self._last_time_s
             event = "power_on" if gap_s is None or step else ("gap" if gap_s > GAP_FACTOR * self.dt_s else None)
             row = self._step_row(values, event, None if event == "power_on" else gap_s)
-            self._last_time_s, self._last_row = time_s, np.array(row)
+            self._last_time_s, self._last_row = time_s, row
+            row = list(row)
         elif self._last_row is not None:
-            row = self._last_row.tolist()
+            row = list(self._last_row)
         else:
-            row = self._power_on_rows({k: np.array([v]) for k, v in values.items()})[0].tolist()
-        out = np.array([row])
-        self._time_features(np.array([time_s]), out)
-        self.rejected = np.array([not accepted])
+            row = self._power_on_rows({k: np.array([values[k]]) for k in self._row_columns})[0].tolist()
+        for i in self._time_index:
+            elapsed_s = time_s - self._start_time_s
+            tau_s = self.specs[i].get("tau_s")
+            row[i] = float(np.exp(np.array([-elapsed_s / float(tau_s)]))[0]) if tau_s else elapsed_s / 3600.0
         self.n_rejected += not accepted
-        return out
+        return row, not accepted
 
     def _time_features(self, time_s: np.ndarray, out: np.ndarray) -> None:
         """Time features at every row's own time (rejected rows too: the clock is not in doubt)."""
@@ -263,7 +274,7 @@ class FeatureExtractor:
             chunk = {k: v[start:stop] for k, v in source.items()}
             out[start:stop] = self._run_segment(chunk, event, gap_s)
         self._last_time_s = float(time_s[-1])
-        self._last_row = out[-1].copy()
+        self._last_row = out[-1].tolist()
         return out
 
     def _run_segment(self, chunk: Mapping[str, np.ndarray], event: str | None, gap_s: float | None) -> np.ndarray:

@@ -116,3 +116,37 @@ def test_add_many_in_chunks_gives_the_bins_and_reports_of_add_one_by_one(fs_hz):
         np.testing.assert_allclose(a, b, rtol=1e-12, atol=1e-15)
     np.testing.assert_array_equal(one.time_s, many.time_s)
     assert one.bins == many.bins
+
+
+def test_a_background_report_uses_the_history_as_it_was_due_and_holds_nothing_up():
+    """The worker reads the history when the report fell due, even after the cap halved it meanwhile."""
+    import threading
+
+    fs_hz = 10.0
+    rng = np.random.default_rng(2)
+    time_s = np.arange(int(300 * fs_hz)) / fs_hz
+    rate_dps = rng.normal(0.0, 0.1, (len(time_s), 3))
+    now, later = (LiveAllan(None, 60.0, fs_hz, max_history_s=100.0, background=flag) for flag in (False, True))
+    due = [[], []]
+    release = threading.Event()
+    for monitor, seen in zip((now, later), due):
+        def report(step, figure=False, history=None, monitor=monitor, seen=seen, original=monitor.report):
+            if monitor.background and not figure:
+                assert threading.current_thread() is not threading.main_thread()
+                release.wait(10.0)  # held until the history has moved on (and was halved)
+            original(step, figure, history)
+            seen.append((step, dict(monitor.last), dict(monitor.bins)))
+        monitor.report = report
+    for monitor in (now, later):
+        for i in range(len(time_s)):
+            monitor.add(time_s[i], rate_dps[i])
+            if monitor is later and i == 1199:  # the first report (at 60 s) is held; the cap (1000 bins) passed
+                assert len(due[1]) == 0 and later._worker.is_alive()
+                release.set()
+            if monitor is later and i >= 1199:
+                later._worker.join()  # the next report never finds this one running
+    now.finish()
+    later.finish()
+    assert [step for step, *_ in due[0]] == [60, 120, 180, 240, 300] and later.n_skipped == 0
+    assert due[1][0] == due[0][0]
+    assert [d[0] for d in due[1]] == [d[0] for d in due[0]]

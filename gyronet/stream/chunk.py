@@ -3,7 +3,10 @@
 A chunk is every good sample that one read of the port completed (one sample when frames arrive
 one by one, hundreds in a flood). It goes through ``Compensator.process`` in one call, is written
 in one ``os.write`` and enters the live Allan monitor in one step, so a flood costs one model
-call per read instead of one per sample, and a lone frame is still answered at once. The
+call per read instead of one per sample, and a lone frame is still answered at once. A chunk of
+at most ``SMALL_ROWS`` samples (a lone frame at 1 kHz, a short backlog) goes sample by sample in
+plain floats instead (``Compensator.process_row``, ``gyronet.small_model``): there the fixed cost
+of each array and TorchScript call, not the arithmetic, was the time (343 us of CPU a frame). The
 compensator keeps its state across calls, so the numbers equal ``compensate.py`` on the same
 samples however they were chunked. A chunk is split where the sensor clock restarted (the filters
 restart there) and where the start-up window ends (so that motion in the window stops the run
@@ -17,6 +20,7 @@ from typing import Sequence
 import numpy as np
 
 from gyronet.compensator import Compensator
+from gyronet.small_model import SMALL_ROWS
 from gyronet.stream.events import Sample
 from gyronet.stream.live_allan import LiveAllan
 from gyronet.stream.output import LiveWriter
@@ -106,6 +110,10 @@ class ChunkWriter:
             self.clock_restarts += 1
             if self.allan is not None:
                 self.allan.new_segment(first.time_s)
+        done = self._in_floats(samples) if len(samples) <= SMALL_ROWS else 0
+        if done == len(samples):
+            return
+        samples = samples[done:]
         columns = {"time_s": np.array([sample.time_s for sample in samples])}
         for name in self.columns[1:]:
             columns[name] = np.array([sample.values[name] for sample in samples])
@@ -113,6 +121,26 @@ class ChunkWriter:
         for rows in (slice(0, split), slice(split, n)):
             if rows.stop > rows.start:
                 self._compensate({name: values[rows] for name, values in columns.items()})
+
+    def _in_floats(self, samples: Sequence[Sample]) -> int:
+        """A few frames (a lone one, a short backlog) in plain floats (``Compensator.process_row``), written in one
+        go; returns how many: it stops at the first where that does not apply (the rest go as arrays)."""
+        rows = []
+        for sample in samples:
+            row = self.compensator.process_row(sample.time_s, sample.values)
+            if row is None:
+                break
+            temp_c = sample.values["temp_c"]
+            rows.append((sample.time_s, row.rate_dps, temp_c, row.out_of_range, row.bad_input))
+            if row.out_of_range:
+                self.n_out_of_range += 1
+                log.debug("temp_c=%.3f at %.3f s outside the trained range", temp_c, sample.time_s)
+        if rows:
+            self.out.write_rows(rows)
+            if self.allan is not None:
+                for time_s, rate_dps, *_ in rows:
+                    self.allan.add(time_s, rate_dps)
+        return len(rows)
 
     def _startup_end(self, time_s: np.ndarray) -> int:
         """How many of these samples fall in a start-up window still open (0 when none is)."""

@@ -2,12 +2,12 @@
 
 Every read of the port is one chunk: the good samples it completed go through
 ``Compensator.process`` together, the same causal code the offline path runs on a whole file, so
-the output equals ``compensate.py`` on the good samples, and a lone frame is answered at once
-(:mod:`.chunk`). The output has the offline columns (``time_s``, compensated ``gyro_*_dps``,
+the output equals ``compensate.py`` on the good samples (to rounding: a chunk of a few samples
+runs in plain floats, not TorchScript), and a lone frame is answered at once (:mod:`.chunk`). The output has the offline columns (``time_s``, compensated ``gyro_*_dps``,
 ``temp_c``, ``out_of_range``) and a chunk's lines are on disk before the next read
 (:mod:`.output`). Faults are counted by reason; the Allan terms of the compensated rate (N and B
-per axis) go to TensorBoard every ``allan_every_s`` of data, and the Allan curves as a figure
-when the run stops (:mod:`.live_allan`).
+per axis) go to TensorBoard every ``allan_every_s`` of data, computed in a worker thread so that
+no frame waits for one, and the Allan curves as a figure when the run stops (:mod:`.live_allan`).
 
 A sensor clock that restarts (a replug: time goes back, or jumps far ahead) starts a new segment:
 the compensator restarts from its power-on state, as the sensor did, and the output keeps the
@@ -15,12 +15,15 @@ sensor's own times, so each segment equals ``compensate.py`` on that segment's s
 """
 from __future__ import annotations
 
+import contextlib
+import gc
 import importlib
 import logging
 import signal
+import sys
 import time
 from pathlib import Path
-from typing import Any, Callable, Mapping
+from typing import Any, Callable, Iterator, Mapping
 
 from gyronet.compensator import Compensator
 from gyronet.stream import FaultCounter, LpBusLayout, Sample, SampleCheck, make_parser
@@ -97,6 +100,7 @@ def run_stream(bundle_dir: str | Path, port: str, output: str | Path, protocol: 
     options = dict(reconnect or {})
     wait_at_start = bool(options.pop("wait_at_start", False))
     compensator = Compensator.load(bundle_dir)
+    compensator.use_small_chunks()  # a lone frame in plain floats, not ~30 TorchScript ops
     compensator.use_startup(**dict(startup or {}))
     compensator.reset()
     check = SampleCheck(**dict(clock or {}))
@@ -106,6 +110,10 @@ def run_stream(bundle_dir: str | Path, port: str, output: str | Path, protocol: 
     if tb_dir is not None and allan_every_s > 0:
         # seconds of imports: done before the port opens, when the sensor's first frames would wait for them
         importlib.import_module("torch.utils.tensorboard")
+    # the set-up's objects (torch, the bundle: hundreds of thousands) out of the garbage collector, whose full
+    # passes over them took milliseconds in the sample loop; collected first, before the port opens (~0.1 s)
+    gc.collect()
+    gc.freeze()
     opened = None if wait_at_start else open_port_or_fail(
         port, baud, read_timeout_s, hint="; pass reconnect.wait_at_start=true to wait for it")
     sensor = None
@@ -118,7 +126,8 @@ def run_stream(bundle_dir: str | Path, port: str, output: str | Path, protocol: 
             opened.close()
         raise
     writer = _tb_writer(tb_dir) if tb_dir is not None and allan_every_s > 0 else None
-    allan = LiveAllan(writer, allan_every_s, float(compensator.meta["fs_hz"])) if allan_every_s > 0 else None
+    allan = LiveAllan(writer, allan_every_s, float(compensator.meta["fs_hz"]), background=True) \
+        if allan_every_s > 0 else None
     counter = FaultCounter()
     started = time.monotonic()
     stopped, failure = "port_gone", None
@@ -135,12 +144,13 @@ def run_stream(bundle_dir: str | Path, port: str, output: str | Path, protocol: 
     sink = ChunkWriter(compensator, out, allan, port, max_samples)
     try:
         try:
-            for chunk in chunks:
-                if sink.write(_good_samples(chunk, counter, gate, sink)):
-                    stopped = "max_samples"
-                    break
-            else:
-                stopped = "interrupted" if external_stop() else "duration" if should_stop() else "port_gone"
+            with _steady_runtime():
+                for chunk in chunks:
+                    if sink.write(_good_samples(chunk, counter, gate, sink)):
+                        stopped = "max_samples"
+                        break
+                else:
+                    stopped = "interrupted" if external_stop() else "duration" if should_stop() else "port_gone"
         except KeyboardInterrupt:
             stopped = "interrupted"
         sink.write(gate.flush())  # the samples held while the rate was measured
@@ -179,6 +189,19 @@ def _good_samples(chunk: list, counter: FaultCounter, gate: RateGate, sink: Chun
         if room is not None and len(ready) >= room:
             break  # what follows is not read, as when the run stopped right after this sample
     return ready
+
+
+@contextlib.contextmanager
+def _steady_runtime(switch_interval_s: float = 2e-4) -> Iterator[None]:
+    """The sample loop with a short GIL switch interval, so that a frame waits at most that long for the Allan
+    worker thread (5 ms by default); on exit, the objects ``run_stream`` froze go back to the collector."""
+    previous_s = sys.getswitchinterval()
+    sys.setswitchinterval(switch_interval_s)
+    try:
+        yield
+    finally:
+        sys.setswitchinterval(previous_s)
+        gc.unfreeze()
 
 
 def interrupt_on_sigterm() -> None:

@@ -13,6 +13,8 @@ from __future__ import annotations
 
 import logging
 import math
+import os
+import threading
 from typing import Any
 
 import numpy as np
@@ -40,10 +42,15 @@ class LiveAllan:
         History kept; past it the older half is dropped.
     max_fill_s
         Longest run of empty bins bridged, s (at least two bins).
+    background
+        Compute the reports due while streaming in a worker thread (at the lowest CPU priority), on
+        the history as it was when each fell due, so that a report (up to ~0.1 s on a day of
+        history) never holds up the next frame; one still running when the next falls due makes
+        that one skipped. ``finish`` waits for it. False: in the caller's thread, at once.
     """
 
     def __init__(self, writer: Any, every_s: float, fs_hz: float, bin_s: float | None = None,
-                 max_history_s: float = 86400.0, max_fill_s: float = 2.0):
+                 max_history_s: float = 86400.0, max_fill_s: float = 2.0, background: bool = False):
         self.writer, self.every_s, self.fs_hz = writer, float(every_s), float(fs_hz)
         self.bin_s = max(1.0 / self.fs_hz, 0.1) if bin_s is None else float(bin_s)
         self.max_bins = max(16, int(max_history_s / self.bin_s))
@@ -55,11 +62,14 @@ class LiveAllan:
         self._shift_s = 0.0  # added to the sensor's time: a restarted clock continues after a break
         self._last_s: float | None = None
         self._bin = -1
-        self._sum = np.zeros(3)
+        self._sum: list | np.ndarray = [0.0, 0.0, 0.0]  # of the open bin
         self._count = 0
         self.next_s: float | None = None
         self.last: dict[str, dict[str, float | None]] = {}
         self.bins: dict[str, int] = {}
+        self.background = bool(background)
+        self._worker: threading.Thread | None = None
+        self.n_skipped = 0  # reports skipped because the one before was still running
 
     @property
     def time_s(self) -> np.ndarray:
@@ -71,8 +81,8 @@ class LiveAllan:
         """Mean compensated rate of each completed bin, (n, 3), deg/s."""
         return self._rate_dps[:self._n]
 
-    def add(self, time_s: float, rate_dps: np.ndarray) -> None:
-        """Add a sample; report when ``every_s`` of data has passed since the last report."""
+    def add(self, time_s: float, rate_dps) -> None:
+        """Add a sample (3 rates, deg/s) in plain floats; report when ``every_s`` of data has passed since the last report."""
         time_s = time_s + self._shift_s
         if self._start_s is None:
             self._start_s = float(time_s)
@@ -84,10 +94,12 @@ class LiveAllan:
         if index != self._bin:
             self._close_bin()
             self._bin = index
-        self._sum += np.asarray(rate_dps, dtype=np.float64).reshape(3)
+        x, y, z = rate_dps
+        total = self._sum
+        self._sum = [total[0] + x, total[1] + y, total[2] + z]
         self._count += 1
         if time_s >= self.next_s:
-            self.report(step=int(round(time_s - self._start_s)))
+            self._due(step=int(round(time_s - self._start_s)))
             self.next_s = time_s + self.every_s
 
     def add_many(self, time_s: np.ndarray, rate_dps: np.ndarray) -> None:
@@ -107,7 +119,7 @@ class LiveAllan:
             self._add_to_bins(time_s[start:stop], rate_dps[start:stop])
             self._last_s = float(time_s[stop - 1])
             if len(due):
-                self.report(step=int(round(self._last_s - self._start_s)))
+                self._due(step=int(round(self._last_s - self._start_s)))
                 self.next_s = self._last_s + self.every_s
             start = stop
 
@@ -122,8 +134,8 @@ class LiveAllan:
     def _close_bin(self) -> None:
         if self._count == 0:
             return
-        self._append(np.array([self._bin]), (self._sum / self._count)[None])
-        self._sum = np.zeros(3)
+        self._append(np.array([self._bin]), (np.asarray(self._sum, dtype=np.float64) / self._count)[None])
+        self._sum = [0.0, 0.0, 0.0]
         self._count = 0
 
     def _add_to_bins(self, time_s: np.ndarray, rate_dps: np.ndarray) -> None:
@@ -158,22 +170,25 @@ class LiveAllan:
 
     def _make_room(self) -> None:
         if self._n >= self.max_bins:  # keep the newest half of the history
+            # in new arrays, never in place: a background report may still read the old ones
             keep = self._n // 2
-            self._index[:keep] = self._index[self._n - keep:self._n]
-            self._rate_dps[:keep] = self._rate_dps[self._n - keep:self._n]
-            self._n = keep
+            index, rate_dps = np.empty_like(self._index), np.empty_like(self._rate_dps)
+            index[:keep], rate_dps[:keep] = self._index[self._n - keep:self._n], self._rate_dps[self._n - keep:self._n]
+            self._index, self._rate_dps, self._n = index, rate_dps, keep
         else:
             self._index = np.resize(self._index, 2 * self._n)
             self._rate_dps = np.resize(self._rate_dps, (2 * self._n, 3))
 
     def bridged(self) -> tuple[np.ndarray, np.ndarray, int]:
         """The longest stretch of bins with short gaps filled: mid-times, s, rates (n, 3), and how many were filled."""
-        index, rate = self._index[:self._n], self._rate_dps[:self._n]
-        if self._n < 2:
-            return self.time_s, rate.copy(), 0
+        return self._bridged(self._index[:self._n], self._rate_dps[:self._n])
+
+    def _bridged(self, index: np.ndarray, rate: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
+        if len(index) < 2:
+            return (self._start_s + (index + 0.5) * self.bin_s if len(index) else np.empty(0)), rate.copy(), 0
         steps = np.diff(index)
         breaks = np.flatnonzero(steps > self.max_fill_bins + 1) + 1
-        edges = [0, *breaks.tolist(), self._n]
+        edges = [0, *breaks.tolist(), len(index)]
         start, stop = max(zip(edges[:-1], edges[1:]), key=lambda s: index[s[1] - 1] - index[s[0]])
         index, rate = index[start:stop], rate[start:stop]
         full = np.arange(index[0], index[-1] + 1)
@@ -183,17 +198,43 @@ class LiveAllan:
         filled[index - index[0]] = rate  # the measured bins exactly as they are
         return self._start_s + (full + 0.5) * self.bin_s, filled, int(len(full) - len(index))
 
-    def report(self, step: int, figure: bool = False) -> None:
-        """Compute N and B per axis on everything so far and log them (and the curves, if asked)."""
+    def _due(self, step: int) -> None:
+        """A report fell due: now, or in the worker on the history as it is now (views: it is only appended to)."""
+        if not self.background:
+            self.report(step)
+            return
+        if self._worker is not None and self._worker.is_alive():
+            self.n_skipped += 1
+            log.debug("Allan report at %d s skipped: the one before is still running", step)
+            return
+        history = (self._index[:self._n], self._rate_dps[:self._n])
+        self._worker = threading.Thread(target=self._background_report, args=(step, history),
+                                        name="live-allan", daemon=True)
+        self._worker.start()
+
+    def _background_report(self, step: int, history: tuple[np.ndarray, np.ndarray]) -> None:
+        try:
+            os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), 19)  # this thread only (Linux)
+        except (AttributeError, OSError):  # another OS: the thread runs at the stream's priority
+            pass
+        try:
+            self.report(step, history=history)
+        except Exception:  # noqa: BLE001 - a failed report must not stop the compensation
+            log.exception("Allan report at %d s failed", step)
+
+    def report(self, step: int, figure: bool = False, history: tuple[np.ndarray, np.ndarray] | None = None) -> None:
+        """Compute N and B per axis on everything so far (or on ``history``: bin indices and means) and log
+        them (and the curves, if asked)."""
         from gyronet.allan import allan_report
 
-        time_s, rate_dps, n_filled = self.bridged()
+        time_s, rate_dps, n_filled = self.bridged() if history is None else self._bridged(*history)
         try:
             report = allan_report(time_s, rate_dps, 1.0 / self.bin_s)
         except GyronetError as err:  # too short so far
             log.debug("no Allan report yet: %s", err)
             return
-        self.bins = {"used": int(len(time_s)), "filled": n_filled, "measured": int(self._n)}
+        self.bins = {"used": int(len(time_s)), "filled": n_filled,
+                     "measured": int(self._n if history is None else len(history[0]))}
         self.last = {axis: {"arw_deg_rthr": _finite_or_none(report[axis]["arw_deg_rthr"]),
                             "bias_instability_deg_hr": _finite_or_none(report[axis]["bias_instability_deg_hr"])}
                      for axis in AXES}
@@ -222,7 +263,9 @@ class LiveAllan:
         self.writer.flush()
 
     def finish(self) -> None:
-        """The last report, with the Allan curves as a figure."""
+        """The last report, with the Allan curves as a figure (after a background one still running)."""
+        if self._worker is not None:
+            self._worker.join()
         self._close_bin()
         if self._n >= 3:
             self.report(step=int(round(self._last_s - self._start_s)), figure=True)

@@ -63,10 +63,12 @@ def _run_pair(ctx: Context, name: str, recording: Path, bundle: Path, protocol: 
         for role, cpu, script, overrides in (
                 ("emulator", EMULATOR_CPU, "emulate_sensor.py",
                  [f"input={recording}", f"protocol={protocol}", f"speed={speed:g}", f"link={link}",
-                  "reader_timeout_s=120", *ticks]),
+                  f"reader_timeout_s={120 + n // 4_000}", *ticks]),
                 ("stream", STREAM_CPU, "stream.py",
                  [f"model={bundle}", f"port={link}", f"protocol={protocol}", f"output={run_dir / 'live.csv'}",
-                  f"max_samples={n}", "reconnect.give_up_s=10", "reconnect.wait_at_start=true", "resample=true",
+                  # the emulator loads and plans its recording before the pty appears (minutes for 3.6 M rows)
+                  f"max_samples={n}", f"reconnect.give_up_s={10 + n // 4_000}", "reconnect.wait_at_start=true",
+                  "resample=true",
                   *ticks])):
             with open(run_dir / f"{role}.log", "w") as log:
                 processes.append(subprocess.Popen(
@@ -97,10 +99,11 @@ def _run_pair(ctx: Context, name: str, recording: Path, bundle: Path, protocol: 
 
 
 def _per_sample_us(bundle: Path, recording: Path, n: int = 3000, warm_up: int = 500) -> dict[str, float]:
-    """In-process, one sample per call as the live loop makes them: features, model, whole process(), us.
+    """In-process, one sample per call: features, TorchScript model, a whole ``process`` call, and
+    ``process_row`` (the live loop's lone frame in plain floats), us.
 
-    Two compensators take the same samples in turns: one is timed stage by stage, the other for the
-    whole ``process`` call, so both see the same machine. The first ``warm_up`` samples are not
+    Three compensators take the same samples in turns: one is timed stage by stage, one for the
+    whole ``process`` call, one for ``process_row``, so all see the same machine. The first ``warm_up`` samples are not
     timed (TorchScript's profiling executor optimises after the first calls).
     """
     import torch
@@ -108,14 +111,16 @@ def _per_sample_us(bundle: Path, recording: Path, n: int = 3000, warm_up: int = 
     from gyronet.compensator import Compensator
     from gyronet.data import load_recording
 
-    staged, whole = Compensator.load(bundle), Compensator.load(bundle)
-    staged.reset()
-    whole.reset()
+    staged, whole, floats = Compensator.load(bundle), Compensator.load(bundle), Compensator.load(bundle)
+    floats.use_small_chunks()
+    for compensator in (staged, whole, floats):
+        compensator.reset()
     columns = load_recording(recording).columns
     perf = time.perf_counter
-    spent = dict.fromkeys(("features", "model", "process"), 0.0)
+    spent = dict.fromkeys(("features", "model", "process", "process_row"), 0.0)
     for i in range(n):
         one = {name: np.array([columns[name][i]]) for name in whole.input_columns}
+        values = {name: float(columns[name][i]) for name in whole.input_columns}
         start = perf()
         x = staged.extractor.process(one)
         middle = perf()
@@ -123,10 +128,13 @@ def _per_sample_us(bundle: Path, recording: Path, n: int = 3000, warm_up: int = 
             staged.model(torch.from_numpy(x)).numpy()
         end = perf()
         whole.process(one)
+        done = perf()
+        floats.process_row(float(columns["time_s"][i]), values)
         if i >= warm_up:
             spent["features"] += middle - start
             spent["model"] += end - middle
-            spent["process"] += perf() - end
+            spent["process"] += done - end
+            spent["process_row"] += perf() - done
     us = {k: 1e6 * v / (n - warm_up) for k, v in spent.items()}
     us["rest"] = us["process"] - us["features"] - us["model"]
     return us
@@ -184,8 +192,8 @@ def stream_pty(ctx: Context) -> dict[str, Any]:
         "per sample in the chunked flood: " + ", ".join(f"{k} {v:.1f} us" for k, v in stage_us["lpbus"].items()),
         "in the per-sample flood: " + ", ".join(f"{k} {v:.0f} us" for k, v in stage_us["lpbus_per_sample"].items()),
         "process() one sample a call, in-process: " + ", ".join(
-            f"{m} {v['process']:.0f} us (features {v['features']:.0f}, model {v['model']:.0f}, rest {v['rest']:.0f})"
-            for m, v in per_sample.items()),
+            f"{m} {v['process']:.0f} us (features {v['features']:.0f}, model {v['model']:.0f}, rest {v['rest']:.0f}; "
+            f"process_row in floats {v['process_row']:.0f} us)" for m, v in per_sample.items()),
         f"paced at 1 kHz for {n_paced / FS_HZ:.0f} s, frame sent -> row written, chunked: {paced_figures('paced')} "
         f"(p99 goal < {P99_GOAL_MS:g} ms: {verdict(latency['paced']['p99'] < P99_GOAL_MS)}; RSS goal flat, < "
         f"{RSS_GOAL_MB_PER_H:g} MB/h: {verdict(memory['paced']['rss_growth_mb_per_h'] < RSS_GOAL_MB_PER_H)}); "
@@ -202,6 +210,24 @@ def stream_pty(ctx: Context) -> dict[str, Any]:
                stage_us_per_sample=stage_us, rows_per_write=rows_per_write, cpu_us_per_sample=cpu_us,
                process_us_per_sample_in_process=per_sample, allan_reports_s=[float(r) for r in reports],
                allan_final_report_s=runs["paced"]["final_report_s"], n_flood=n_flood, n_paced=n_paced, rss=memory)
+
+
+@bench("stream_rss_hour")
+def stream_rss_hour(ctx: Context) -> dict[str, Any]:
+    """RSS of stream.py against samples over one hour of 1 kHz data, flooded through the pty (goal: flat, < 10 MB/h)."""
+    n = ctx.size(int(3600 * FS_HZ), 30_000)
+    run = _run_pair(ctx, "rss_hour", _recording_1khz(ctx, n), trained_bundle(ctx, "default"), "lpbus", 0, n)
+    memory = _rss_figures(run["rss"])
+    rss_mb = run["rss"][1:, 2]
+    hours = n / FS_HZ / 3600.0
+    notes = (f"{n} samples ({hours:g} h of 1 kHz data) flooded in {run['elapsed_s']:.0f} s, default bundle: RSS "
+             f"{memory['rss_start_mb']:.0f} MB at the first row, {rss_mb.max():.0f} MB at most, "
+             f"{memory['rss_end_mb']:.0f} MB at the end; growth over the second half "
+             f"{memory['rss_growth_mb_per_h']:.1f} MB per hour of data (goal < {RSS_GOAL_MB_PER_H:g}: "
+             f"{'met' if memory['rss_growth_mb_per_h'] < RSS_GOAL_MB_PER_H else 'NOT met'}); the live Allan "
+             f"history (0.1 s bins, capped at 24 h) grows by about 1 MB per hour of data by design")
+    return row("stream_rss_hour", run["elapsed_s"], None, notes, n_samples=n, rss=memory,
+               rss_mb_by_rows=[[int(r), float(mb)] for r, _, mb in run["rss"][1::max(1, len(rss_mb) // 60)]])
 
 
 _HISTORY_SCRIPT = """

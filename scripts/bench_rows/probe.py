@@ -9,10 +9,10 @@ changed) and then runs the script as ``__main__``. Times are ``time.perf_counter
 Linux is CLOCK_MONOTONIC, one clock for both processes.
 
 stream: ``parser.feed`` (the bytes of a read were just taken: its samples are stamped with that
-time, and the first one starts the CPU clock), ``Compensator.process``, ``LiveWriter.write`` (the
-output rows are written and flushed: the latency of each sample in them ends; the last one stops
-the CPU clock, which gives the CPU time the stream used whatever else ran on its core),
-``LiveAllan.add_many`` and ``LiveAllan.report`` (the last report, which ``finish`` makes after the
+time, and the first one starts the CPU clock), ``Compensator.process`` (and ``process_row``, a lone
+frame), ``LiveWriter.write`` (and ``write_rows``: the output rows are written and flushed: the
+latency of each sample in them ends; the last one stops the CPU clock, which gives the CPU time the
+stream used whatever else ran on its core), ``LiveAllan.add_many`` (and ``add``) and ``LiveAllan.report`` (the last report, which ``finish`` makes after the
 stream stopped, is kept apart); RSS every 1000 rows. The per-sample arrays are allocated and
 touched before the script starts (``max_samples=`` sizes them), so the probe's own memory does not
 show up as growth of the stream's RSS.
@@ -126,8 +126,11 @@ class StreamProbe:
         _wrap(live, "make_parser", make_parser)
         _wrap(lpbus_setup.LpBusStart, "parser", make_parser)  # the LP-BUS parser once the set-up has run
         _wrap(Compensator, "process", timed("process"))
+        _wrap(Compensator, "process_row", timed("process"))  # a lone frame in plain floats
         _wrap(live.LiveWriter, "write", write)
+        _wrap(live.LiveWriter, "write_rows", write)
         _wrap(live.LiveAllan, "add_many", timed("allan_add"))
+        _wrap(live.LiveAllan, "add", timed("allan_add"))
         if per_sample:
             _wrap(live, "read_chunks", _one_item_chunks)
         _wrap(live.LiveAllan, "report", report)
