@@ -187,11 +187,16 @@ class RBFNet(nn.Module):
         step = OLS_STEP_C / scale_c
         low, high = float(self.z_low[t]), float(self.z_high[t])
         grid = torch.arange(low, high + 0.5 * step, step, dtype=x.dtype)
+        temp = ((x[:, t] - self.x_mean[t]) / self.x_std[t]).clamp(low, high)
+        # a Gaussian centred in a gap of the training temperatures (a held-out span) is fitted by its
+        # tails alone: candidates only where a training temperature lies within a grid step
+        seen = torch.sort(temp).values
+        after = torch.bucketize(grid, seen).clamp(1, len(seen) - 1)
+        grid = grid[torch.minimum(grid - seen[after - 1], seen[after] - grid).abs() <= step]
         widths = torch.tensor(OLS_WIDTHS_C, dtype=x.dtype) * self.width_init / scale_c
         centre_of = grid.repeat(len(widths))
         width_of = widths.repeat_interleave(len(grid))
         _, lin, powers = self.parts(x)  # the other terms' regressors; the Gaussians' values are unused
-        temp = ((x[:, t] - self.x_mean[t]) / self.x_std[t]).clamp(low, high)
         # phi_jk = exp(-(T_j - c_k)^2 / (2 w_k^2)), every candidate k
         candidates = torch.exp(-0.5 * ((temp[:, None] - centre_of[None]) / width_of[None]).pow(2))
         base = [torch.ones(len(x), 1, dtype=x.dtype)]

@@ -181,6 +181,17 @@ def test_ols_initialisation_fits_a_sharp_knee_that_kmeans_centres_miss():
     assert float(widths_c.min()) >= OLS_WIDTHS_C[0] - 1e-9  # the candidates' widths, in degC
 
 
+def test_ols_centres_stay_out_of_a_gap_in_the_training_temperatures():
+    """A held-out span leaves a gap; a Gaussian centred there would be fitted by its tails alone."""
+    x, y, _ = _knee_data(knee_c=-5.0)
+    kept = (x[:, 0] < -10.0) | (x[:, 0] > 0.0)
+    model = RBFNet(3, 3, 12, rbf_inputs=[0], linear=True, temp_degree=3, clamp=True, center_init="ols")
+    model.init_from_data(x[kept], y[kept], torch.Generator().manual_seed(0))
+    with torch.no_grad():
+        centres_c = (model.centers[:, 0] * model.x_std[0] + model.x_mean[0]).tolist()
+    assert not any(-8.5 < c < -1.5 for c in centres_c), centres_c
+
+
 def test_ols_initialisation_refuses_gaussians_on_several_inputs_and_unknown_inits():
     with pytest.raises(ValueError, match="temperature only"):
         RBFNet(3, 3, 4, center_init="ols")
