@@ -105,6 +105,14 @@ def fit(model: torch.nn.Module, data: DriftData, optim: Callable | None = None, 
         metrics = {"train/loss": float(torch.mean((pred - y) ** 2)), **validation_metrics(model, data)}
         _check_finite(metrics, "the closed-form fit")
         return metrics
+    if (getattr(model, "validate_init", False) and not warm_start and stop_at_step is None and offsets is None
+            and getattr(data, "held_out", None) is None):
+        options = dict(max_epochs=max_epochs, patience=patience, eval_every=eval_every, seed=seed,
+                       weight_decay=weight_decay, progress=progress, threads=threads)
+        final = _fit_best_init(model, data, optim, {**options, "writer": writer})
+        if for_bundle:
+            _continue_on_every_block(model, data, final, optim, options)
+        return final
     if warm_start:
         _widen_box(model, x)
     elif offsets is None:
@@ -132,6 +140,8 @@ def fit(model: torch.nn.Module, data: DriftData, optim: Callable | None = None, 
                                "or check the recording for extreme values)")
         loss.backward()
         optimizer.step()
+        if hasattr(model, "keep_widths_"):
+            model.keep_widths_()
         if stop_at_step is not None:  # a fixed budget: no validation run to stop on
             if step + 1 >= stop_at_step:
                 break
@@ -162,16 +172,43 @@ def fit(model: torch.nn.Module, data: DriftData, optim: Callable | None = None, 
     final = {"train/loss": best["train/loss"], "train/steps": step + 1, "train/best_step": best["train/best_step"],
              **validation_metrics(model, data), **chosen}
     _check_finite(final, "the trained model")
-    everything = _every_block(data) if for_bundle and getattr(model, "refit_all", False) else None
-    if everything is not None:
-        fit(model, everything, optim, max_epochs, patience, eval_every, seed, weight_decay, None, progress,
-            threads, stop_at_step=max_epochs, warm_start=True)
-        if chosen:
-            from gyronet import capacity
-
-            capacity.apply(model, everything, [int(chosen[f"model/level_{a}"]) for a in AXES])
-        log.info("continued on every block (%d) for %d steps", len(everything.train), max_epochs)
+    if for_bundle:
+        _continue_on_every_block(model, data, final, optim, dict(
+            max_epochs=max_epochs, patience=patience, eval_every=eval_every, seed=seed, weight_decay=weight_decay,
+            progress=progress, threads=threads))
     return final
+
+
+def _continue_on_every_block(model: torch.nn.Module, data: DriftData, final: Mapping[str, float],
+                             optim: Callable | None, options: Mapping[str, Any]) -> None:
+    """``RBFNet.refit_all``: continue a validated fit on every block of its recording, keeping its capacity."""
+    everything = _every_block(data) if getattr(model, "refit_all", False) else None
+    if everything is None:
+        return
+    fit(model, everything, optim, **options, stop_at_step=options["max_epochs"], warm_start=True)
+    if "model/level_x" in final:
+        from gyronet import capacity
+
+        capacity.apply(model, everything, [int(final[f"model/level_{a}"]) for a in AXES])
+    log.info("continued on every block (%d) for %d steps", len(everything.train), options["max_epochs"])
+
+
+def _fit_best_init(model: torch.nn.Module, data: DriftData, optim: Callable | None,
+                   options: Mapping[str, Any]) -> dict[str, float]:
+    """``RBFNet.validate_init``: a validated fit from each initialisation; the lower held-out error is kept."""
+    from gyronet.model import CENTER_INITS
+
+    trials = []
+    for init in CENTER_INITS:
+        trial = copy.deepcopy(model)
+        trial.center_init, trial.validate_init = init, False
+        trials.append((fit(trial, data, optim, **options), init, trial))
+    final, init, best = min(trials, key=lambda t: t[0]["val/rmse_dps"])
+    model.load_state_dict(best.state_dict())
+    model.train_min_width = best.train_min_width
+    log.info("initialisation kept: %s (held-out %s deg/s)", init,
+             ", ".join(f"{i} {f['val/rmse_dps']:.4g}" for f, i, _ in trials))
+    return {**final, "model/ols_init": float(init == "ols")}
 
 
 def _widen_box(model: torch.nn.Module, x: torch.Tensor) -> None:

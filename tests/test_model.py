@@ -1,10 +1,16 @@
 """RBFNet and the baselines: gradients, TorchScript round trip, PX4 clamping, extrapolation."""
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
 import torch
 from torch.testing import assert_close
 
 from gyronet.baselines import LinearFeatures, TempPolynomial
+from gyronet.dataset import Blocks
 from gyronet.export import load_bundle, save_bundle
-from gyronet.model import RBFNet
+from gyronet.model import OLS_WIDTHS_C, RBFNet, forward_select
+from gyronet.train import fit
 
 
 def _data(n=400, seed=0):
@@ -137,3 +143,95 @@ def test_clamping_the_linear_temperature_term_changes_nothing_inside_the_box():
         beyond = x[:3].clone()
         beyond[:, 0] += 200.0
         assert_close(scripted(beyond), model(beyond), rtol=0, atol=1e-12)
+
+
+def _knee_data(width_c=4.0, knee_c=17.0, n=2000, seed=0):
+    """One slow pass through -40..60 degC: a cubic bias plus a tanh knee a few degC wide, and noise."""
+    g = torch.Generator().manual_seed(seed)
+    temp = torch.linspace(60.0, -40.0, n, dtype=torch.float64)
+    rate = torch.full_like(temp, -1.0 / 60)
+    x = torch.stack([temp, rate, temp * rate], 1)
+    u = (temp - 10.0) / 50.0
+    knee = 0.3 * torch.tanh((temp - knee_c) / width_c)
+    y = torch.stack([0.8 * u + 0.3 * u**3 + knee, -0.5 * u**2 - 0.5 * knee, 0.4 * u], 1)
+    return x, y + 1e-3 * torch.randn(y.shape, generator=g, dtype=torch.float64), knee
+
+
+def test_forward_selection_finds_the_columns_a_target_is_made_of():
+    g = torch.Generator().manual_seed(0)
+    t = torch.linspace(-1, 1, 300, dtype=torch.float64)[:, None]
+    candidates = torch.exp(-0.5 * ((t - torch.linspace(-1, 1, 41, dtype=torch.float64)) / 0.1) ** 2)
+    base = torch.cat([torch.ones_like(t), t], 1)
+    target = base @ torch.randn(2, 2, generator=g, dtype=torch.float64) + candidates[:, [7, 30]] @ torch.tensor(
+        [[1.0, 0.0], [0.5, -2.0]], dtype=torch.float64)
+    assert sorted(forward_select(candidates, base, target, 2).tolist()) == [7, 30]
+
+
+def test_ols_initialisation_fits_a_sharp_knee_that_kmeans_centres_miss():
+    x, y, _ = _knee_data()
+    misfit = {}
+    for init in ("kmeans", "ols"):
+        model = RBFNet(3, 3, 6, rbf_inputs=[0], linear=True, temp_degree=3, clamp=True, center_init=init)
+        model.init_from_data(x, y, torch.Generator().manual_seed(0))
+        with torch.no_grad():
+            misfit[init] = float((model(x) - y)[:, :2].pow(2).mean().sqrt())
+    assert misfit["ols"] < 0.5 * misfit["kmeans"], misfit
+    with torch.no_grad():
+        widths_c = model.widths() * model.x_std[0]
+    assert float(widths_c.min()) >= OLS_WIDTHS_C[0] - 1e-9  # the candidates' widths, in degC
+
+
+def test_ols_centres_stay_out_of_a_gap_in_the_training_temperatures():
+    """A held-out span leaves a gap; a Gaussian centred there would be fitted by its tails alone."""
+    x, y, _ = _knee_data(knee_c=-5.0)
+    kept = (x[:, 0] < -10.0) | (x[:, 0] > 0.0)
+    model = RBFNet(3, 3, 12, rbf_inputs=[0], linear=True, temp_degree=3, clamp=True, center_init="ols")
+    model.init_from_data(x[kept], y[kept], torch.Generator().manual_seed(0))
+    with torch.no_grad():
+        centres_c = (model.centers[:, 0] * model.x_std[0] + model.x_mean[0]).tolist()
+    assert not any(-8.5 < c < -1.5 for c in centres_c), centres_c
+
+
+def test_ols_initialisation_refuses_gaussians_on_several_inputs_and_unknown_inits():
+    with pytest.raises(ValueError, match="temperature only"):
+        RBFNet(3, 3, 4, center_init="ols")
+    with pytest.raises(ValueError, match="center_init"):
+        RBFNet(3, 3, 4, center_init="grid")
+
+
+def _blocks(x, y):
+    """Every fifth block held out, as ``fit`` reads a recording's blocks."""
+    time_s = np.arange(len(x)) * 10.0
+    held_out = np.arange(len(x)) % 5 == 0
+    blocks = [Blocks(x[m].numpy(), y[m].numpy(), time_s[m]) for m in (~held_out, held_out)]
+    return SimpleNamespace(train=blocks[0], val=blocks[1], val_full=(blocks[1].time_s, blocks[1].x, blocks[1].y))
+
+
+def test_validate_init_keeps_the_start_with_the_lower_held_out_error():
+    x, y, _ = _knee_data()
+    data = _blocks(x, y)
+    alone = {}
+    for init in ("kmeans", "ols"):
+        model = RBFNet(3, 3, 6, rbf_inputs=[0], linear=True, temp_degree=3, clamp=True, center_init=init)
+        alone[init] = fit(model, data, max_epochs=100, progress=False)["val/rmse_dps"]
+    model = RBFNet(3, 3, 6, rbf_inputs=[0], linear=True, temp_degree=3, clamp=True, validate_init=True)
+    metrics = fit(model, data, max_epochs=100, progress=False)
+    assert alone["ols"] < alone["kmeans"]  # a sharp knee: forward selection wins here
+    assert metrics["model/ols_init"] == 1.0 and metrics["val/rmse_dps"] == alone["ols"]
+    with torch.no_grad():
+        assert float((model.widths() * model.x_std[0]).min()) >= OLS_WIDTHS_C[0] - 1e-9
+
+
+def test_training_keeps_ols_widths_at_or_above_the_narrowest_candidate():
+    """``fit`` holds the floor: without it Adam narrows a Gaussian onto a step far sharper than any candidate."""
+    x, y, _ = _knee_data(width_c=0.5)
+    data = _blocks(x, y)
+    narrowest = {}
+    for floor in (False, True):
+        model = RBFNet(3, 3, 6, rbf_inputs=[0], linear=True, temp_degree=3, clamp=True, center_init="ols")
+        if not floor:
+            model.keep_widths_ = lambda: None
+        fit(model, data, max_epochs=300, patience=10_000, progress=False)
+        with torch.no_grad():
+            narrowest[floor] = float((model.widths() * model.x_std[0]).min())
+    assert narrowest[False] < 0.9 * OLS_WIDTHS_C[0] <= narrowest[True] + 1e-9, narrowest
