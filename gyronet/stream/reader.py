@@ -7,10 +7,16 @@ from __future__ import annotations
 
 import logging
 import os
+import select
 import time
 from typing import Callable, Iterator, Protocol
 
 import serial
+
+try:
+    from serial.serialposix import Serial as PosixSerial
+except ImportError:  # no termios (Windows): every port goes through pyserial's read
+    PosixSerial = None
 
 from gyronet.errors import GyronetError
 from gyronet.stream.events import Fault, Sample
@@ -122,10 +128,7 @@ def read_chunks(port: serial.SerialBase | None, parser: Parser, *, url: str | No
                 if lost and on_reopen is not None:
                     on_reopen(port)
             try:
-                data = port.read(min(max(1, port.in_waiting), chunk_bytes))
-                # and whatever else already waits (a pty hands over 4 KiB a read), never waiting for more
-                while data and len(data) < chunk_bytes and port.in_waiting:
-                    data += port.read(min(port.in_waiting, chunk_bytes - len(data)))
+                data = _read_waiting(port, chunk_bytes)
             except PORT_ERRORS as err:
                 log.warning("port %s lost: %s", url, err)
                 yield [Fault("port_lost", detail=str(err)[:80]), *parser.flush()]
@@ -141,6 +144,42 @@ def read_chunks(port: serial.SerialBase | None, parser: Parser, *, url: str | No
     finally:
         if port is not None:
             _close_quietly(port)
+
+
+def _read_waiting(port: serial.SerialBase, chunk_bytes: int) -> bytes:
+    """At least one byte, or nothing after the port's timeout; then whatever else already waits, never more.
+
+    A POSIX serial port is read on its descriptor (one ``select`` and one ``read`` for a lone frame,
+    where pyserial's ``read`` and ``in_waiting`` cost five system calls and most of a frame's CPU at
+    1 kHz); any other port (``loop://``, ``socket://``, another platform) through pyserial.
+    """
+    fd = getattr(port, "fd", None) if PosixSerial is not None and isinstance(port, PosixSerial) else None
+    if fd is None:
+        data = port.read(min(max(1, port.in_waiting), chunk_bytes))
+        # and whatever else already waits (a pty hands over 4 KiB a read), never waiting for more
+        while data and len(data) < chunk_bytes and port.in_waiting:
+            data += port.read(min(port.in_waiting, chunk_bytes - len(data)))
+        return data
+    if not select.select([fd], [], [], port.timeout)[0]:
+        return b""
+    data = _read_fd(fd, chunk_bytes)
+    if data == b"":  # ready but empty: pyserial's sign of a device gone
+        raise serial.SerialException("device reports readiness to read but returned no data (device disconnected?)")
+    data = data or b""
+    while len(data) < chunk_bytes and select.select([fd], [], [], 0)[0]:
+        more = _read_fd(fd, chunk_bytes - len(data))
+        if not more:
+            break
+        data += more
+    return data
+
+
+def _read_fd(fd: int, size: int) -> bytes | None:
+    """``os.read`` on a non-blocking descriptor: what is there, up to ``size``; None on EAGAIN (a spurious wake-up)."""
+    try:
+        return os.read(fd, size)
+    except BlockingIOError:
+        return None
 
 
 def _reopen(url: str | None, baud: int, timeout_s: float, stop: Callable[[], bool], backoff_s: float,
