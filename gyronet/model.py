@@ -23,6 +23,8 @@ import torch
 from torch import Tensor, nn
 from torch.nn import functional
 
+from gyronet.errors import GyronetError
+
 log = logging.getLogger(__name__)
 
 _MIN_WIDTH = 1e-3
@@ -256,6 +258,10 @@ def _raw_width(width: Tensor) -> Tensor:
     return torch.log(torch.expm1(width - _MIN_WIDTH))
 
 
+class SelectionError(GyronetError, ValueError):
+    """Fewer independent candidate Gaussians than centres (a narrow temperature range): no selected start."""
+
+
 def forward_select(candidates: Tensor, base: Tensor, target: Tensor, k: int) -> Tensor:
     """Orthogonal least squares: the ``k`` candidate columns that, added one at a time to ``base``,
     most reduce the squared error of every target column together.
@@ -282,7 +288,7 @@ def forward_select(candidates: Tensor, base: Tensor, target: Tensor, k: int) -> 
     basis function networks", IEEE Trans. Neural Networks 2(2), 1991.
     """
     if k > candidates.shape[1]:
-        raise ValueError(f"cannot select {k} of {candidates.shape[1]} candidate Gaussians")
+        raise SelectionError(f"cannot select {k} of {candidates.shape[1]} candidate Gaussians")
     q, _ = torch.linalg.qr(base)
     residual = target - q @ (q.T @ target)
     pool = candidates - q @ (q.T @ candidates)
@@ -296,7 +302,7 @@ def forward_select(candidates: Tensor, base: Tensor, target: Tensor, k: int) -> 
         gain[chosen] = -1.0
         best = int(gain.argmax())
         if gain[best] < 0:
-            raise ValueError(f"only {len(chosen)} independent candidate Gaussians, {k} asked for")
+            raise SelectionError(f"only {len(chosen)} independent candidate Gaussians, {k} asked for")
         unit = pool[:, best] / energy[best].sqrt()
         residual = residual - unit[:, None] * (unit @ residual)[None]
         pool = pool - unit[:, None] * (unit @ pool)[None]

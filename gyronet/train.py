@@ -196,13 +196,16 @@ def _continue_on_every_block(model: torch.nn.Module, data: DriftData, final: Map
 def _fit_best_init(model: torch.nn.Module, data: DriftData, optim: Callable | None,
                    options: Mapping[str, Any]) -> dict[str, float]:
     """``RBFNet.validate_init``: a validated fit from each initialisation; the lower held-out error is kept."""
-    from gyronet.model import CENTER_INITS
+    from gyronet.model import CENTER_INITS, SelectionError
 
     trials = []
     for init in CENTER_INITS:
         trial = copy.deepcopy(model)
         trial.center_init, trial.validate_init = init, False
-        trials.append((fit(trial, data, optim, **options), init, trial))
+        try:
+            trials.append((fit(trial, data, optim, **options), init, trial))
+        except SelectionError as err:  # a narrow range: the other start alone
+            log.info("no %s start (%s)", init, err)
     final, init, best = min(trials, key=lambda t: t[0]["val/rmse_dps"])
     model.load_state_dict(best.state_dict())
     model.train_min_width = best.train_min_width

@@ -277,7 +277,7 @@ def _draw_damage(draw, case: Case) -> None:
     elif kind == "bad_cell":
         case.cells[row][column] = draw(st.sampled_from(["nan", "NaN", "inf", "-inf", "", "NA", "null", " ", "1e999",
                                                         "abc", "1,5", "0x10", "1_000"]))
-    elif kind == "time" and len(case.cells) > 1:
+    elif kind == "time" and len(case.cells) > 1 and "time_s" in case.names:  # an earlier damage may rename it
         where = case.names.index("time_s")
         row = max(row, 1)
         case.cells[row][where] = case.cells[row - 1][where]
