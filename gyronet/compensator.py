@@ -192,9 +192,7 @@ class Compensator:
         else:
             rate_dps = self._filtered(residual_dps, bad_dps)
             bad_input = bad_input | bad_dps.any(1)
-        temp_c = np.asarray(columns["temp_c"], dtype=np.float64)
-        low, high = self.temp_range_c
-        out_of_range = (temp_c < low) | (temp_c > high)
+        out_of_range = self._outside(np.asarray(columns["temp_c"], dtype=np.float64))
         self.n_out_of_range += int(out_of_range.sum())
         self.n_bad_input += int(np.count_nonzero(bad_input))
         return Compensated(rate_dps, drift_dps, out_of_range, bad_input)
@@ -217,11 +215,15 @@ class Compensator:
         if self.kalman is not None:
             rate_dps = self.kalman.process(np.array([rate_dps]))[0].tolist()
         self._last_rate_dps = rate_dps
-        temp_c = values["temp_c"]
-        out_of_range = temp_c < self.temp_range_c[0] or temp_c > self.temp_range_c[1]
+        out_of_range = self._outside(values["temp_c"])
         self.n_out_of_range += out_of_range
         self.n_bad_input += rejected
         return CompensatedRow(rate_dps, drift_dps, out_of_range, rejected)
+
+    def _outside(self, temp_c):
+        """Outside the trained temperatures (an array or a float; NaN is not outside: it is bad input)."""
+        low, high = self.temp_range_c
+        return (temp_c < low) | (temp_c > high)
 
     def _filtered(self, rate_dps: np.ndarray, bad_dps: np.ndarray) -> np.ndarray:
         """The Kalman stage (if any) on the compensated rate, bad values replaced by the last output."""

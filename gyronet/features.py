@@ -213,18 +213,20 @@ class FeatureExtractor:
         else:
             row = self._power_on_rows({k: np.array([values[k]]) for k in self._row_columns})[0].tolist()
         for i in self._time_index:
-            elapsed_s = time_s - self._start_time_s
-            tau_s = self.specs[i].get("tau_s")
-            row[i] = float(np.exp(np.array([-elapsed_s / float(tau_s)]))[0]) if tau_s else elapsed_s / 3600.0
+            row[i] = float(self._time_feature(i, np.array([time_s]))[0])
         self.n_rejected += not accepted
         return row, not accepted
 
     def _time_features(self, time_s: np.ndarray, out: np.ndarray) -> None:
         """Time features at every row's own time (rejected rows too: the clock is not in doubt)."""
         for i in self._time_index:
-            elapsed_s = time_s - self._start_time_s
-            tau_s = self.specs[i].get("tau_s")
-            out[:, i] = np.exp(-elapsed_s / float(tau_s)) if tau_s else elapsed_s / 3600.0
+            out[:, i] = self._time_feature(i, time_s)
+
+    def _time_feature(self, i: int, time_s: np.ndarray) -> np.ndarray:
+        """Time feature ``i`` at ``time_s``: hours since the start, or a decay with ``tau_s`` from it."""
+        elapsed_s = time_s - self._start_time_s
+        tau_s = self.specs[i].get("tau_s")
+        return np.exp(-elapsed_s / float(tau_s)) if tau_s else elapsed_s / 3600.0
 
     def _step_row(self, values: Mapping[str, float], event: str | None, gap_s: float | None) -> list[float]:
         """The features of one accepted sample (``_run_segment`` for a segment of one, in floats)."""

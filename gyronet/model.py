@@ -36,6 +36,27 @@ OLS_WIDTHS_C = (4.0, 6.0, 8.0, 11.0, 16.0)
 CENTER_INITS = ("kmeans", "ols")
 
 
+class _Gaussians1D(torch.autograd.Function):
+    """``RBFNet._gaussians`` on one input, (n, 1) -> (n, K), with its gradient by hand (training only)."""
+
+    @staticmethod
+    def forward(ctx, r: Tensor, centers: Tensor, widths: Tensor) -> Tensor:
+        diff = r - centers.t()
+        scale = -0.5 / (widths * widths)
+        phi = torch.exp(diff * diff * scale)
+        ctx.save_for_backward(diff, scale, phi, widths)
+        return phi
+
+    @staticmethod
+    def backward(ctx, grad_phi: Tensor):
+        # phi = exp(scale d^2), d = r - c, scale = -1 / (2 w^2): dphi/dc = -2 scale d phi, dphi/dw = d^2 phi / w^3
+        diff, scale, phi, widths = ctx.saved_tensors
+        weighted = grad_phi * phi * diff
+        grad_centers = (-2.0 * scale * weighted.sum(0)).unsqueeze(1)
+        grad_widths = (weighted * diff).sum(0) / (widths * widths * widths)
+        return None, grad_centers, grad_widths
+
+
 class RBFNet(nn.Module):
     """Gaussian RBF network with learnable centres and widths, plus optional linear and polynomial terms.
 
@@ -136,19 +157,45 @@ class RBFNet(nn.Module):
         the training never saw; at a steady temperature (dT/dt = 0, so T * dT/dt = 0) the whole
         output holds.
         """
+        r, z, powers = self._inputs(x)
+        return self._gaussians(r), z, powers
+
+    def _inputs(self, x: Tensor) -> Tuple[Tensor, Tensor, Tensor]:
+        """The parts' inputs, none of which depends on a parameter: the Gaussians' inputs (clamped), the
+        linear term's and the temperature powers."""
         z = (x - self.x_mean) / self.x_std
         zc = torch.minimum(torch.maximum(z, self.z_low), self.z_high) if self.clamp else z
         if self.clamp:
             t = self.temp_index
             z = torch.cat([z[:, :t], zc[:, t:t + 1], z[:, t + 1:]], dim=1)
-        r = zc.index_select(1, self.rbf_index)
-        # phi_k = exp(-|r - c_k|^2 / (2 w_k^2))
-        # (broadcast rather than cdist: cdist's backward is slow and its forward no faster here)
-        sq_dist = (r.unsqueeze(1) - self.centers.unsqueeze(0)).pow(2).sum(2)
-        phi = torch.exp(-0.5 * sq_dist / self.widths().pow(2))
         temp = zc[:, self.temp_index:self.temp_index + 1]
         powers = torch.cat([temp.pow(k) for k in range(2, max(self.temp_degree, 2) + 1)], dim=1)
-        return phi, z, powers
+        return zc.index_select(1, self.rbf_index), z, powers
+
+    def _gaussians(self, r: Tensor) -> Tensor:
+        # phi_k = exp(-|r - c_k|^2 / (2 w_k^2))
+        # (broadcast rather than cdist: cdist's backward is slow and its forward no faster here)
+        diff = r.unsqueeze(1) - self.centers.unsqueeze(0)
+        widths = self.widths()
+        return torch.exp((diff * diff).sum(2) * (-0.5 / (widths * widths)))
+
+    def on_fixed_input(self, x: Tensor):
+        """``forward(x)`` as a function of the parameters alone, for a fit's inner loop on one ``x``.
+
+        What does not depend on a parameter (normalised inputs, clamp, temperature powers) is
+        computed once, and Gaussians on one input take a hand-written gradient (``_Gaussians1D``,
+        a third of autograd's operations): the same numbers as ``forward``, in about half the time
+        a step. The buffers must not change while it is used.
+        """
+        with torch.no_grad():
+            r, z, powers = self._inputs(x)
+
+        def gaussians() -> Tensor:
+            if r.shape[1] == 1:
+                return _Gaussians1D.apply(r, self.centers, self.widths())
+            return self._gaussians(r)
+
+        return lambda: (self.head(gaussians()) + self.linear(z) + self.poly(powers)) * self.y_std + self.y_mean
 
     def basis(self, x: Tensor) -> Tensor:
         """Every regressor the output layers combine, side by side."""

@@ -125,13 +125,14 @@ def fit(model: torch.nn.Module, data: DriftData, optim: Callable | None = None, 
     y_norm = (y - model.y_mean) / model.y_std
     best = {"val/rmse_dps": float("inf")}
     best_state, since_best = copy.deepcopy(model.state_dict()), 0
+    predict = model.on_fixed_input(x) if hasattr(model, "on_fixed_input") else lambda: model(x)
     bar = tqdm(range(max_epochs), desc="fit", disable=not progress, leave=False, mininterval=1.0)
     for step in bar:
         for group, base in zip(optimizer.param_groups, base_lrs):
             group["lr"] = lr_at(step, max_epochs, base)
         optimizer.zero_grad(set_to_none=True)
         # loss on normalised targets, so every axis counts the same
-        pred = model(x) if offsets is None else model(x) + offsets()
+        pred = predict() if offsets is None else predict() + offsets()
         loss = torch.mean(((pred - model.y_mean) / model.y_std - y_norm) ** 2)
         if weight_decay:
             loss = loss + weight_decay * (model.head.weight.pow(2).sum() + model.poly.weight.pow(2).sum())

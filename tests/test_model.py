@@ -33,6 +33,23 @@ def test_gradcheck_on_a_tiny_float64_net():
     assert torch.autograd.gradcheck(fn, inputs)
 
 
+@pytest.mark.parametrize("options", [dict(rbf_inputs=[0], linear=True, temp_degree=3, clamp=True), dict()],
+                         ids=["default", "paper"])
+def test_a_fit_on_a_fixed_input_computes_forward_and_its_gradients(options):
+    model = RBFNet(3, 3, n_centers=6, **options)
+    x, y = _data(300)
+    model.init_from_data(x, y, torch.Generator().manual_seed(0))
+    x_out = x * 1.5  # outside the box on every side: the clamp is part of what is precomputed
+    gradients = []
+    for output in (model(x_out), model.on_fixed_input(x_out)()):
+        model.zero_grad()
+        output.pow(2).sum().backward()
+        gradients.append([p.grad.clone() for p in model.parameters() if p.requires_grad])
+    assert torch.equal(model(x_out), model.on_fixed_input(x_out)())
+    for by_autograd, by_hand in zip(*gradients):  # one input: the Gaussians' gradient by hand, to rounding
+        assert_close(by_hand, by_autograd, rtol=1e-12, atol=1e-12 * float(by_autograd.abs().max()))
+
+
 def test_widths_stay_positive():
     model = RBFNet(3, 3, n_centers=5)
     model.raw_width.data.fill_(-50.0)
