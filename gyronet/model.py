@@ -195,7 +195,7 @@ class RBFNet(nn.Module):
                 return _Gaussians1D.apply(r, self.centers, self.widths())
             return self._gaussians(r)
 
-        return lambda: (self.head(gaussians()) + self.linear(z) + self.poly(powers)) * self.y_std + self.y_mean
+        return lambda: self._output(gaussians(), z, powers)
 
     def basis(self, x: Tensor) -> Tensor:
         """Every regressor the output layers combine, side by side."""
@@ -205,8 +205,11 @@ class RBFNet(nn.Module):
     def forward(self, x: Tensor) -> Tensor:
         """Drift (deg/s), shape (n, n_outputs), from features ``x`` of shape (n, n_inputs), float64."""
         phi, z, powers = self.parts(x)
-        y = self.head(phi) + self.linear(z) + self.poly(powers)
-        return y * self.y_std + self.y_mean
+        return self._output(phi, z, powers)
+
+    def _output(self, phi: Tensor, z: Tensor, powers: Tensor) -> Tensor:
+        """The output layers on the parts, in deg/s."""
+        return (self.head(phi) + self.linear(z) + self.poly(powers)) * self.y_std + self.y_mean
 
     @torch.no_grad()
     def init_from_data(self, x: Tensor, y: Tensor, generator: torch.Generator, ridge: float = 1e-6) -> None:

@@ -133,7 +133,7 @@ class ChunkWriter:
             temp_c = sample.values["temp_c"]
             rows.append((sample.time_s, row.rate_dps, temp_c, row.out_of_range, row.bad_input))
             if row.out_of_range:
-                self._out_of_range(temp_c, sample.time_s)
+                self._out_of_range([temp_c], [sample.time_s])
         if rows:
             self.out.write_rows(rows)
             if self.allan is not None:
@@ -152,11 +152,15 @@ class ChunkWriter:
     def _compensate(self, columns: dict[str, np.ndarray]) -> None:
         result = self.compensator.process(columns)
         self.out.write(columns["time_s"], columns["temp_c"], result)
-        for row in np.flatnonzero(result.out_of_range).tolist():
-            self._out_of_range(columns["temp_c"][row], columns["time_s"][row])
+        flagged = np.flatnonzero(result.out_of_range)
+        if len(flagged):
+            self._out_of_range(columns["temp_c"][flagged].tolist(), columns["time_s"][flagged].tolist())
         if self.allan is not None:
             self.allan.add_many(columns["time_s"], result.rate_dps)
 
-    def _out_of_range(self, temp_c: float, time_s: float) -> None:
-        self.n_out_of_range += 1
-        log.debug("temp_c=%.3f at %.3f s outside the trained range", temp_c, time_s)
+    def _out_of_range(self, temp_c: Sequence[float], time_s: Sequence[float]) -> None:
+        """Count the samples outside the trained range; name each at debug level."""
+        self.n_out_of_range += len(temp_c)
+        if log.isEnabledFor(logging.DEBUG):
+            for temp, time in zip(temp_c, time_s):
+                log.debug("temp_c=%.3f at %.3f s outside the trained range", temp, time)
