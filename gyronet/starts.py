@@ -121,9 +121,10 @@ def fit_both_starts(model: nn.Module, data: DriftData, optim: Callable | None, o
         levels = [trials[k][0].get(f"model/level_{axis}") for k in used if weights[k, a] > 0]
         if None not in levels:
             final[f"model/level_{axis}"] = float(max(levels))
-    log.info("starts mixed per axis (held-out %s deg/s): weight on %s %s; mixture %.4g deg/s",
-             ", ".join(f"{i} {f['val/rmse_dps']:.4g}" for f, i, _ in trials), trials[-1][1],
-             "/".join(f"{w:.2f}" for w in weights[-1]), final["val/rmse_dps"])
+    if len(trials) > 1:
+        log.info("starts mixed per axis (held-out %s deg/s): weight on %s %s; mixture %.4g deg/s",
+                 ", ".join(f"{i} {f['val/rmse_dps']:.4g}" for f, i, _ in trials), trials[-1][1],
+                 "/".join(f"{w:.2f}" for w in weights[-1]), final["val/rmse_dps"])
     if for_bundle:
         plain = {k: v for k, v in options.items() if k != "writer"}
         for k in used:
