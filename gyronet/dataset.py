@@ -241,7 +241,12 @@ class DriftData(TrainingData):
 
 
 def block_rmse(time_s: np.ndarray, residual: np.ndarray, block_s: float = 60.0) -> np.ndarray:
-    """RMS over ``block_s`` blocks of the block-averaged residual, per axis (the contract's metric).
+    """RMS over ``block_s`` blocks of the block-averaged residual, per axis (the contract's metric)."""
+    return np.sqrt(np.mean(residual_block_means(time_s, residual, block_s) ** 2, axis=0))
+
+
+def residual_block_means(time_s: np.ndarray, residual: np.ndarray, block_s: float = 60.0) -> np.ndarray:
+    """The ``block_s`` block means that ``block_rmse`` squares, (m, axes).
 
     Blocks are formed on contiguous runs: a time-block split leaves gaps, and a block never
     straddles one.
@@ -249,9 +254,8 @@ def block_rmse(time_s: np.ndarray, residual: np.ndarray, block_s: float = 60.0) 
     gaps = np.flatnonzero(np.diff(time_s) > 1.5 * np.median(np.diff(time_s))) + 1
     pieces = [block_means(residual[a:b], time_s[a:b], block_s)
               for a, b in zip([0, *gaps], [*gaps, len(time_s)]) if b - a > 1]
-    means = np.concatenate([p for p in pieces if len(p)]) if pieces else np.empty((0, residual.shape[1]))
-    return np.sqrt(np.mean(means**2, axis=0))
+    return np.concatenate([p for p in pieces if len(p)]) if pieces else np.empty((0, residual.shape[1]))
 
 
 __all__ = ["Blocks", "DriftData", "TrainingData", "block_rmse", "check_features_present", "check_physical", "featurize",
-           "static_rate_dps", "to_blocks", "time_blocks"]
+           "residual_block_means", "static_rate_dps", "to_blocks", "time_blocks"]

@@ -98,8 +98,9 @@ class RBFNet(nn.Module):
         candidates on a temperature grid at several widths, each picked for how much of the
         training target the other terms leave it explains (Gaussians on temperature only).
     validate_init
-        One recording: a validated fit from each ``center_init`` (``gyronet.train.fit``), and the
-        one with the lower held-out error is kept; several runs and fixed-budget fits use
+        One recording: a validated fit from each ``center_init``, mixed per axis with the weight
+        that minimises the held-out blocks' error (``gyronet.starts``; the bundle holds both sets
+        of Gaussians unless one start wins on every axis); several runs and fixed-budget fits use
         ``center_init``. Neither start is better on every sensor: forward selection finds a sharp
         knee that k-means centres miss, k-means centres follow a broad bend with less noise.
     """

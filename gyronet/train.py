@@ -109,10 +109,9 @@ def fit(model: torch.nn.Module, data: DriftData, optim: Callable | None = None, 
             and getattr(data, "held_out", None) is None):
         options = dict(max_epochs=max_epochs, patience=patience, eval_every=eval_every, seed=seed,
                        weight_decay=weight_decay, progress=progress, threads=threads)
-        final = _fit_best_init(model, data, optim, {**options, "writer": writer})
-        if for_bundle:
-            _continue_on_every_block(model, data, final, optim, options)
-        return final
+        from gyronet.starts import fit_both_starts
+
+        return fit_both_starts(model, data, optim, {**options, "writer": writer}, for_bundle)
     if warm_start:
         _widen_box(model, x)
     elif offsets is None:
@@ -192,27 +191,6 @@ def _continue_on_every_block(model: torch.nn.Module, data: DriftData, final: Map
 
         capacity.apply(model, everything, [int(final[f"model/level_{a}"]) for a in AXES])
     log.info("continued on every block (%d) for %d steps", len(everything.train), options["max_epochs"])
-
-
-def _fit_best_init(model: torch.nn.Module, data: DriftData, optim: Callable | None,
-                   options: Mapping[str, Any]) -> dict[str, float]:
-    """``RBFNet.validate_init``: a validated fit from each initialisation; the lower held-out error is kept."""
-    from gyronet.model import CENTER_INITS, SelectionError
-
-    trials = []
-    for init in CENTER_INITS:
-        trial = copy.deepcopy(model)
-        trial.center_init, trial.validate_init = init, False
-        try:
-            trials.append((fit(trial, data, optim, **options), init, trial))
-        except SelectionError as err:  # a narrow range: the other start alone
-            log.info("no %s start (%s)", init, err)
-    final, init, best = min(trials, key=lambda t: t[0]["val/rmse_dps"])
-    model.load_state_dict(best.state_dict())
-    model.train_min_width = best.train_min_width
-    log.info("initialisation kept: %s (held-out %s deg/s)", init,
-             ", ".join(f"{i} {f['val/rmse_dps']:.4g}" for f, i, _ in trials))
-    return {**final, "model/ols_init": float(init == "ols")}
 
 
 def _widen_box(model: torch.nn.Module, x: torch.Tensor) -> None:

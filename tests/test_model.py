@@ -10,7 +10,8 @@ from gyronet.baselines import LinearFeatures, TempPolynomial
 from gyronet.dataset import Blocks
 from gyronet.export import load_bundle, save_bundle
 from gyronet.model import OLS_WIDTHS_C, RBFNet, forward_select
-from gyronet.train import fit
+from gyronet.starts import held_out_residuals, mix_into, stack_weights
+from gyronet.train import fit, validation_metrics
 
 
 def _data(n=400, seed=0):
@@ -224,19 +225,49 @@ def _blocks(x, y):
     return SimpleNamespace(train=blocks[0], val=blocks[1], val_full=(blocks[1].time_s, blocks[1].x, blocks[1].y))
 
 
-def test_validate_init_keeps_the_start_with_the_lower_held_out_error():
+def test_stack_weights_minimise_the_held_out_error_of_the_mixture_per_axis():
+    rng = np.random.default_rng(0)
+    first = rng.normal(size=(50, 3)) + np.array([0.0, 2.0, -1.0])
+    second = rng.normal(size=(50, 3)) + np.array([0.0, -1.0, -3.0])
+    second[:, 2] = 2 * first[:, 2]  # twice the error everywhere on z: the weight stops at 0
+    weights = stack_weights(first, second)
+    grid = np.linspace(0.0, 1.0, 2001)
+    error = [(((1 - w) * first + w * second) ** 2).sum(0) for w in grid]
+    assert_close(torch.tensor(weights), torch.tensor(grid[np.argmin(error, axis=0)]), atol=1e-3, rtol=0)
+    assert 0.0 < weights[0] < 1.0 and weights[2] == 0.0
+    assert stack_weights(first, first).tolist() == [0.0, 0.0, 0.0]
+
+
+def test_validate_init_mixes_the_two_starts_per_axis_by_their_held_out_residuals(tmp_path):
+    """The bundle is one network: (1 - w) k-means fit + w OLS fit per axis, w stacked on the held-out blocks."""
     x, y, _ = _knee_data()
     data = _blocks(x, y)
     alone = {}
     for init in ("kmeans", "ols"):
-        model = RBFNet(3, 3, 6, rbf_inputs=[0], linear=True, temp_degree=3, clamp=True, center_init=init)
-        alone[init] = fit(model, data, max_epochs=100, progress=False)["val/rmse_dps"]
+        alone[init] = RBFNet(3, 3, 6, rbf_inputs=[0], linear=True, temp_degree=3, clamp=True, center_init=init)
+        fit(alone[init], data, max_epochs=100, progress=False)
     model = RBFNet(3, 3, 6, rbf_inputs=[0], linear=True, temp_degree=3, clamp=True, validate_init=True)
     metrics = fit(model, data, max_epochs=100, progress=False)
-    assert alone["ols"] < alone["kmeans"]  # a sharp knee: forward selection wins here
-    assert metrics["model/ols_init"] == 1.0 and metrics["val/rmse_dps"] == alone["ols"]
+    weights = stack_weights(*(held_out_residuals(alone[i], data) for i in ("kmeans", "ols")))
+    assert [metrics[f"model/ols_weight_{a}"] for a in "xyz"] == weights.tolist()
+    assert 0.0 < weights[0] < 1.0  # neither start alone: the x knee
     with torch.no_grad():
-        assert float((model.widths() * model.x_std[0]).min()) >= OLS_WIDTHS_C[0] - 1e-9
+        mixture = (1 - torch.tensor(weights)) * alone["kmeans"](x) + torch.tensor(weights) * alone["ols"](x)
+        assert_close(model(x), mixture, rtol=0, atol=1e-12)
+    assert metrics["val/rmse_dps"] <= min(validation_metrics(m, data)["val/rmse_dps"] for m in alone.values())
+    assert model.n_centers == 12
+    meta = {"features": [], "fs_hz": 10.0, "temp_range_c": [-40, 60]}
+    loaded = load_bundle(save_bundle(model, meta, tmp_path / "b"))[0]
+    assert_close(loaded(x), model(x).detach())
+
+
+def test_mix_into_refuses_fits_normalised_on_different_data():
+    x, y, _ = _knee_data()
+    parts = [RBFNet(3, 3, 4, rbf_inputs=[0], linear=True, temp_degree=3, clamp=True) for _ in range(2)]
+    parts[0].init_from_data(x, y, torch.Generator().manual_seed(0))
+    parts[1].init_from_data(x[::2], y[::2], torch.Generator().manual_seed(0))
+    with pytest.raises(ValueError, match="normalise differently"):
+        mix_into(RBFNet(3, 3, 4, rbf_inputs=[0]), parts, np.full((2, 3), 0.5))
 
 
 def test_training_keeps_ols_widths_at_or_above_the_narrowest_candidate():

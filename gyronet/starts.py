@@ -1,0 +1,139 @@
+"""Two starts of the default network, mixed per axis by held-out stacking (``RBFNet.validate_init``).
+
+On one recording the early-stopped fit runs from the k-means centres and from the forward-selected
+(OLS) ones. Neither start is better on every sensor, and on one cooling pass the held-out blocks
+cannot always tell which one carries over to another thermal history: at temperatures passed only
+on a ramp, Gaussians can stand in for the dT/dt terms, and every block of that pass agrees. So
+rather than keep one start, the bundle is their convex combination per axis, with the weight that
+minimises the held-out blocks' error (stacked regression with two models and weights summing to
+one). Keeping one start is the special case of a weight 0 or 1, so on the held-out blocks the
+mixture is never worse than the better start; where both fit the blocks alike it hedges.
+
+The mixture is itself one ``RBFNet``: both sets of Gaussians side by side, each output row weighted.
+Both fits normalise by the same data and share the trained box, so the sum is exact, and the
+bundle, its TorchScript and a C export compute it like any other network. A start whose weight is
+zero on every axis is left out, so the bundle keeps 12 centres when one start wins everywhere.
+
+References
+----------
+L. Breiman, "Stacked regressions", Machine Learning 24(1), 1996.
+"""
+from __future__ import annotations
+
+import copy
+import logging
+from typing import Any, Callable, Mapping, Sequence
+
+import numpy as np
+import torch
+from torch import nn
+
+from gyronet.data import AXES
+from gyronet.dataset import DriftData, residual_block_means
+
+log = logging.getLogger(__name__)
+
+_SHARED_BUFFERS = ("x_mean", "x_std", "z_low", "z_high", "y_mean", "y_std", "rbf_index")
+
+
+def stack_weights(first: np.ndarray, second: np.ndarray) -> np.ndarray:
+    """Per axis, the weight w in [0, 1] on ``second`` that minimises |(1 - w) first + w second|^2.
+
+    Parameters
+    ----------
+    first, second
+        Two models' held-out residuals, (m, axes): block means of measured minus predicted.
+
+    Returns
+    -------
+    numpy.ndarray
+        (axes,) weights on ``second``; 0 where the two residuals are the same.
+    """
+    diff = second - first
+    energy = (diff * diff).sum(0)
+    # d/dw |first + w diff|^2 = 0  ->  w = -first . diff / |diff|^2
+    weight = np.where(energy > 0, -(first * diff).sum(0) / np.where(energy > 0, energy, 1.0), 0.0)
+    return np.clip(weight, 0.0, 1.0)
+
+
+@torch.no_grad()
+def mix_into(model: nn.Module, parts: Sequence[nn.Module], weights: np.ndarray) -> None:
+    """Write into ``model`` the network whose output is ``sum_k weights[k, a] * parts[k]`` on each axis ``a``.
+
+    ``weights`` is (len(parts), axes), each column summing to one; the parts must share the
+    normalisation and box (fits on the same data). ``model`` takes every part's Gaussians.
+    """
+    for name in _SHARED_BUFFERS:
+        if not all(torch.equal(getattr(p, name), getattr(parts[0], name)) for p in parts):
+            raise ValueError(f"the fits to mix normalise differently ({name}): they must share their data")
+    scale = torch.as_tensor(np.asarray(weights), dtype=torch.float64)  # (parts, axes)
+    dtype = parts[0].centers.dtype
+    model.n_centers = sum(p.n_centers for p in parts)
+    model.centers = nn.Parameter(torch.cat([p.centers.detach() for p in parts]))
+    model.raw_width = nn.Parameter(torch.cat([p.raw_width.detach() for p in parts]))
+    model.head = nn.Linear(model.n_centers, model.n_outputs, dtype=dtype)
+    model.head.weight.copy_(torch.cat([p.head.weight * w[:, None] for p, w in zip(parts, scale)], dim=1))
+    model.head.bias.copy_(sum(p.head.bias * w for p, w in zip(parts, scale)))
+    for layer in ("linear", "poly"):
+        getattr(model, layer).weight.copy_(sum(getattr(p, layer).weight * w[:, None] for p, w in zip(parts, scale)))
+    for name in _SHARED_BUFFERS:
+        getattr(model, name).copy_(getattr(parts[0], name))
+    model.train_min_width = min(p.train_min_width for p in parts)
+
+
+def held_out_residuals(model: nn.Module, data: DriftData) -> np.ndarray:
+    """The held-out 60 s block means of measured minus predicted drift, (m, axes), as ``val/rmse`` squares them."""
+    from gyronet.train import _predict
+
+    time_s, x, y = data.val_full
+    return residual_block_means(time_s, y - _predict(model, x), 60.0)
+
+
+def fit_both_starts(model: nn.Module, data: DriftData, optim: Callable | None, options: Mapping[str, Any],
+                    for_bundle: bool) -> dict[str, float]:
+    """A validated fit from each ``center_init``, mixed per axis by the held-out blocks, into ``model``.
+
+    With ``for_bundle`` each fit continues on every block (``RBFNet.refit_all``) before the mixing,
+    with the weights and capacity its validation chose; the returned validation figures are the
+    mixture's before that, as for a single start.
+    """
+    from gyronet.model import CENTER_INITS, SelectionError
+    from gyronet.train import _continue_on_every_block, fit, validation_metrics
+
+    trials = []
+    for init in CENTER_INITS:
+        trial = copy.deepcopy(model)
+        trial.center_init, trial.validate_init = init, False
+        try:
+            trials.append((fit(trial, data, optim, **options), init, trial))
+        except SelectionError as err:  # a narrow range: the other start alone
+            log.info("no %s start (%s)", init, err)
+    if len(trials) == 1:
+        on_second = np.zeros(len(AXES))
+    else:
+        on_second = stack_weights(*(held_out_residuals(t, data) for _, _, t in trials))
+    weights = np.stack([1.0 - on_second, on_second])[:len(trials)]
+    used = [k for k in range(len(trials)) if weights[k].any()]
+    mixed = copy.deepcopy(model)
+    mix_into(mixed, [trials[k][2] for k in used], weights[used])
+    final = {**min((t[0] for t in trials), key=lambda f: f["val/rmse_dps"]), **validation_metrics(mixed, data)}
+    for a, axis in enumerate(AXES):
+        levels = [trials[k][0].get(f"model/level_{axis}") for k in used if weights[k, a] > 0]
+        if None not in levels:
+            final[f"model/level_{axis}"] = float(max(levels))
+    if len(trials) > 1:
+        log.info("starts mixed per axis (held-out %s deg/s): weight on %s %s; mixture %.4g deg/s",
+                 ", ".join(f"{i} {f['val/rmse_dps']:.4g}" for f, i, _ in trials), trials[-1][1],
+                 "/".join(f"{w:.2f}" for w in weights[-1]), final["val/rmse_dps"])
+    if for_bundle:
+        plain = {k: v for k, v in options.items() if k != "writer"}
+        for k in used:
+            _continue_on_every_block(trials[k][2], data, trials[k][0], optim, plain)
+    mix_into(model, [trials[k][2] for k in used], weights[used])
+    weight_of = dict(zip((i for _, i, _ in trials), weights))
+    final.update({f"model/{init}_weight_{axis}": float(weight_of[init][a]) if init in weight_of else 0.0
+                  for init in CENTER_INITS for a, axis in enumerate(AXES)})
+    return final
+
+
+__all__ = ["fit_both_starts", "held_out_residuals", "mix_into", "stack_weights"]
