@@ -13,6 +13,7 @@ from gyronet.compensator import Compensator
 from gyronet.data import GYRO_COLUMNS, Recording, load_recording
 from gyronet.offline import compensate_recording
 from gyronet.stream import FaultPlan, LpBusParser, Sample, lpbus_frame, plan_stream
+from gyronet.stream.events import as_samples
 
 OUT_OF_RANGE_TEMP_C = 150.0
 
@@ -39,8 +40,8 @@ def scripted_reads(reads: list[bytes], per_sample: bool):
             if should_stop():
                 return
             items = parser.feed(data)
-            if per_sample:
-                yield from ([item] for item in items)
+            if per_sample:  # a flood's block taken apart: one chunk a sample, as the loop before chunks
+                yield from ([item] for item in as_samples(items))
             elif items:
                 yield items
         yield parser.flush()
