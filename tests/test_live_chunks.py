@@ -218,13 +218,13 @@ def test_rows_in_floats_are_the_lines_write_makes_for_them(tmp_path):
     from gyronet.compensator import Compensated
     from gyronet.stream.output import LiveWriter
 
-    time_s, temp_c = [12.345678901234, 12.5], [25.0625, -3.0]
-    rate = [[0.1 + 1e-17, -2.5e-7, 1234.000000001], [float("nan"), 0.0, -0.0]]
-    flags = [[True, False], [False, True]]
+    time_s, temp_c = [12.345678901234, 12.5, 1e16], [25.0625, -3.0, 1e-5]
+    rate = [[0.1 + 1e-17, -2.5e-7, 1234.000000001], [float("nan"), 0.0, -0.0], [float("inf"), -float("inf"), 5e-324]]
+    flags = [[True, False, False], [False, True, True]]
     one, many = LiveWriter(tmp_path / "one.csv", tmp_path), LiveWriter(tmp_path / "many.csv", tmp_path)
-    one.write_rows([(time_s[k], rate[k], temp_c[k], flags[0][k], flags[1][k]) for k in range(2)])
+    one.write_rows([(time_s[k], rate[k], temp_c[k], flags[0][k], flags[1][k]) for k in range(3)])
     many.write(np.array(time_s), np.array(temp_c),
                Compensated(np.array(rate), np.zeros((2, 3)), np.array(flags[0]), np.array(flags[1])))
     one.close(), many.close()
     assert (tmp_path / "one.csv").read_bytes() == (tmp_path / "many.csv").read_bytes()
-    assert one.n_rows == many.n_rows == 2
+    assert one.n_rows == many.n_rows == 3
