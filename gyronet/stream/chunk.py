@@ -122,7 +122,7 @@ class ChunkWriter:
             if done == len(samples):
                 return
         if len(samples) == 1 and isinstance(samples[0], SampleBlock):  # a flood's chunk: its columns as they are
-            columns = {name: first.columns[name] for name in self.columns}
+            columns = {name: samples[0].columns[name] for name in self.columns}
         else:
             columns = self._columns(samples[done:])
         split, n = self._startup_end(columns["time_s"]), len(columns["time_s"])

@@ -1,4 +1,4 @@
-"""What a framing parser yields: a good ``Sample`` (or a ``SampleBlock`` of them) or a ``Fault``, and a ``FaultCounter``.
+"""What a framing parser yields: a good ``Sample`` (or a ``SampleBlock`` of them) or a ``Fault``; a ``FaultCounter``.
 
 Both framings (LP-BUS and CSV lines) share the checks that do not depend on the framing: every
 value finite, time strictly increasing, a restarted sensor clock seen as a new segment

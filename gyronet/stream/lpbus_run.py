@@ -19,6 +19,7 @@ import numpy as np
 from gyronet.stream.events import SampleBlock, SampleCheck
 from gyronet.stream.lpbus_layout import LpBusLayout
 
+# the frame as in gyronet.stream.lpbus (which imports this module, so it cannot import them from there)
 HEADER_BYTE = 0x3A
 GET_SENSOR_DATA = 9
 FOOTER_U16 = 0x0A0D  # b"\r\n" read as a little-endian u16
