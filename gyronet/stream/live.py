@@ -27,6 +27,7 @@ from typing import Any, Callable, Iterator, Mapping
 
 from gyronet.compensator import Compensator
 from gyronet.stream import Fault, FaultCounter, LpBusLayout, SampleCheck, make_parser
+from gyronet.stream.allocator import fix_mmap_threshold
 from gyronet.stream.chunk import RATE_PROBE_SAMPLES, ChunkWriter, RateGate, n_rows
 from gyronet.stream.events import Sample, SampleBlock
 from gyronet.stream.live_allan import LiveAllan
@@ -201,7 +202,9 @@ def _good_samples(chunk: list, counter: FaultCounter, gate: RateGate, sink: Chun
 @contextlib.contextmanager
 def _steady_runtime(switch_interval_s: float = 2e-4) -> Iterator[None]:
     """The sample loop with a short GIL switch interval, so that a frame waits at most that long for the Allan
-    worker thread (5 ms by default); on exit, the objects ``run_stream`` froze go back to the collector."""
+    worker thread (5 ms by default), and malloc's mmap threshold fixed, so that the RSS stays flat over hours
+    (:mod:`.allocator`); on exit, the objects ``run_stream`` froze go back to the collector."""
+    fix_mmap_threshold()
     previous_s = sys.getswitchinterval()
     sys.setswitchinterval(switch_interval_s)
     try:
