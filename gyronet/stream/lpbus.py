@@ -105,14 +105,14 @@ class LpBusParser:
     def feed(self, data: bytes) -> list[Sample | SampleBlock | Fault]:
         """Parse what ``data`` completes; keep the rest for the next call."""
         self._buffer += data
-        out: list[Sample | Fault] = []
+        out: list[Sample | SampleBlock | Fault] = []
         position = self._consume(out, final=False)
         del self._buffer[:position]
         return self._release(out)
 
-    def flush(self) -> list[Sample | Fault]:
+    def flush(self) -> list[Sample | SampleBlock | Fault]:
         """End of stream (or of a connection): parse what can be, report what is left as cut."""
-        out: list[Sample | Fault] = []
+        out: list[Sample | SampleBlock | Fault] = []
         position = self._consume(out, final=True)
         rest = bytes(self._buffer[position:])
         self._buffer.clear()
@@ -121,7 +121,7 @@ class LpBusParser:
             out.append(Fault("truncated", rest, "stream ended inside a frame"))
         return self._release(out, final=True)
 
-    def _release(self, out: list, final: bool = False) -> list[Sample | Fault]:
+    def _release(self, out: list, final: bool = False) -> list[Sample | SampleBlock | Fault]:
         """``out``, or nothing while the probe is undecided; at the end, the probe judges the frames it has."""
         if self.probe is None and not self._held:
             return out
