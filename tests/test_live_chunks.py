@@ -13,6 +13,7 @@ from gyronet.compensator import Compensator
 from gyronet.data import GYRO_COLUMNS, Recording, load_recording
 from gyronet.offline import compensate_recording
 from gyronet.stream import FaultPlan, LpBusParser, Sample, lpbus_frame, plan_stream
+from gyronet.stream.events import as_samples
 
 OUT_OF_RANGE_TEMP_C = 150.0
 
@@ -39,8 +40,8 @@ def scripted_reads(reads: list[bytes], per_sample: bool):
             if should_stop():
                 return
             items = parser.feed(data)
-            if per_sample:
-                yield from ([item] for item in items)
+            if per_sample:  # a flood's block taken apart: one chunk a sample, as the loop before chunks
+                yield from ([item] for item in as_samples(items))
             elif items:
                 yield items
         yield parser.flush()
@@ -217,13 +218,13 @@ def test_rows_in_floats_are_the_lines_write_makes_for_them(tmp_path):
     from gyronet.compensator import Compensated
     from gyronet.stream.output import LiveWriter
 
-    time_s, temp_c = [12.345678901234, 12.5], [25.0625, -3.0]
-    rate = [[0.1 + 1e-17, -2.5e-7, 1234.000000001], [float("nan"), 0.0, -0.0]]
-    flags = [[True, False], [False, True]]
+    time_s, temp_c = [12.345678901234, 12.5, 1e16], [25.0625, -3.0, 1e-5]
+    rate = [[0.1 + 1e-17, -2.5e-7, 1234.000000001], [float("nan"), 0.0, -0.0], [float("inf"), -float("inf"), 5e-324]]
+    flags = [[True, False, False], [False, True, True]]
     one, many = LiveWriter(tmp_path / "one.csv", tmp_path), LiveWriter(tmp_path / "many.csv", tmp_path)
-    one.write_rows([(time_s[k], rate[k], temp_c[k], flags[0][k], flags[1][k]) for k in range(2)])
+    one.write_rows([(time_s[k], rate[k], temp_c[k], flags[0][k], flags[1][k]) for k in range(3)])
     many.write(np.array(time_s), np.array(temp_c),
                Compensated(np.array(rate), np.zeros((2, 3)), np.array(flags[0]), np.array(flags[1])))
     one.close(), many.close()
     assert (tmp_path / "one.csv").read_bytes() == (tmp_path / "many.csv").read_bytes()
-    assert one.n_rows == many.n_rows == 2
+    assert one.n_rows == many.n_rows == 3

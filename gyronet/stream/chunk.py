@@ -10,7 +10,9 @@ of each array and TorchScript call, not the arithmetic, was the time (343 us of 
 compensator keeps its state across calls, so the numbers equal ``compensate.py`` on the same
 samples however they were chunked. A chunk is split where the sensor clock restarted (the filters
 restart there) and where the start-up window ends (so that motion in the window stops the run
-after the window's rows are written, as when each sample went on its own).
+after the window's rows are written, as when each sample went on its own). A flood's frames come
+as blocks of columns (``SampleBlock``, the LP-BUS parser's fast path), which go to the compensator
+without a ``Sample`` object each.
 """
 from __future__ import annotations
 
@@ -21,7 +23,7 @@ import numpy as np
 
 from gyronet.compensator import Compensator
 from gyronet.small_model import SMALL_ROWS
-from gyronet.stream.events import Sample
+from gyronet.stream.events import Sample, SampleBlock
 from gyronet.stream.live_allan import LiveAllan
 from gyronet.stream.output import LiveWriter
 
@@ -43,10 +45,12 @@ class RateGate:
         self.n_samples = max(1, int(n_samples))
         self.held: list[Sample] | None = []  # None once the rate is checked
 
-    def push(self, sample: Sample) -> list[Sample]:
-        """The samples ready to compensate after ``sample`` arrived."""
+    def push(self, sample: Sample | SampleBlock) -> list[Sample | SampleBlock]:
+        """The samples ready to compensate after ``sample`` (or a block of them) arrived."""
         if self.held is None:
             return [sample]
+        if isinstance(sample, SampleBlock):
+            return [ready for one in sample.samples() for ready in self.push(one)]
         self.held.append(sample)
         return self.flush() if len(self.held) >= self.n_samples else []
 
@@ -90,37 +94,57 @@ class ChunkWriter:
         """True once ``max_samples`` rows are out."""
         return self.max_samples is not None and self.out.n_rows >= self.max_samples
 
-    def write(self, samples: Sequence[Sample]) -> bool:
+    def write(self, samples: Sequence[Sample | SampleBlock]) -> bool:
         """Compensate and write ``samples`` (in stream order); True once ``max_samples`` rows are out."""
         if self.max_samples is not None:
-            samples = samples[:max(0, self.max_samples - self.out.n_rows)]
+            samples = first_rows(samples, max(0, self.max_samples - self.out.n_rows))
         starts = [i for i, sample in enumerate(samples) if i == 0 or sample.new_segment]
         for start, stop in zip(starts, [*starts[1:], len(samples)]):
             self._segment(samples[start:stop])
         return self.full
 
-    def _segment(self, samples: Sequence[Sample]) -> None:
+    def _segment(self, samples: Sequence[Sample | SampleBlock]) -> None:
         """Samples of one sensor clock: the first may start a new segment, none of the others does."""
         first = samples[0]
         if self.out.n_rows == 0:
-            self.compensator.check_columns(first.row(), source=f"{self.port}: the stream")
+            self.compensator.check_columns(first.columns if isinstance(first, SampleBlock) else first.row(),
+                                           source=f"{self.port}: the stream")
         if first.new_segment:
             # the sensor restarted: so do the filters (from a clean state, never from the old one)
             self.compensator.reset()
             self.clock_restarts += 1
             if self.allan is not None:
                 self.allan.new_segment(first.time_s)
-        done = self._in_floats(samples) if len(samples) <= SMALL_ROWS else 0
-        if done == len(samples):
-            return
-        samples = samples[done:]
-        columns = {"time_s": np.array([sample.time_s for sample in samples])}
-        for name in self.columns[1:]:
-            columns[name] = np.array([sample.values[name] for sample in samples])
-        split, n = self._startup_end(columns["time_s"]), len(samples)
+        done = 0
+        if n_rows(samples) <= SMALL_ROWS:
+            samples = [one for sample in samples for one in _samples_of(sample)]
+            done = self._in_floats(samples)
+            if done == len(samples):
+                return
+        if len(samples) == 1 and isinstance(samples[0], SampleBlock):  # a flood's chunk: its columns as they are
+            columns = {name: samples[0].columns[name] for name in self.columns}
+        else:
+            columns = self._columns(samples[done:])
+        split, n = self._startup_end(columns["time_s"]), len(columns["time_s"])
         for rows in (slice(0, split), slice(split, n)):
             if rows.stop > rows.start:
                 self._compensate({name: values[rows] for name, values in columns.items()})
+
+    def _columns(self, samples: Sequence[Sample | SampleBlock]) -> dict[str, np.ndarray]:
+        """The compensator's columns of ``samples``, blocks and lone samples in stream order."""
+        pieces: list[dict[str, np.ndarray]] = []
+        lone: list[Sample] = []
+        for sample in [*samples, None]:
+            if isinstance(sample, Sample):
+                lone.append(sample)
+                continue
+            if lone:
+                pieces.append({"time_s": np.array([one.time_s for one in lone]),
+                               **{name: np.array([one.values[name] for one in lone]) for name in self.columns[1:]}})
+                lone = []
+            if sample is not None:
+                pieces.append(sample.columns)
+        return {name: np.concatenate([piece[name] for piece in pieces]) for name in self.columns}
 
     def _in_floats(self, samples: Sequence[Sample]) -> int:
         """A few frames (a lone one, a short backlog) in plain floats (``Compensator.process_row``), written in one
@@ -164,3 +188,25 @@ class ChunkWriter:
         if log.isEnabledFor(logging.DEBUG):
             for temp, time in zip(temp_c, time_s):
                 log.debug("temp_c=%.3f at %.3f s outside the trained range", temp, time)
+
+
+def n_rows(samples: Sequence[Sample | SampleBlock]) -> int:
+    """How many samples ``samples`` holds, a block counting its length."""
+    return sum(len(sample) if isinstance(sample, SampleBlock) else 1 for sample in samples)
+
+
+def first_rows(samples: Sequence[Sample | SampleBlock], stop: int) -> list[Sample | SampleBlock]:
+    """The first ``stop`` samples of ``samples``, a block cut where they end."""
+    out: list[Sample | SampleBlock] = []
+    for sample in samples:
+        if stop <= 0:
+            break
+        if isinstance(sample, SampleBlock) and len(sample) > stop:
+            sample = sample.cut(stop)
+        out.append(sample)
+        stop -= len(sample) if isinstance(sample, SampleBlock) else 1
+    return out
+
+
+def _samples_of(sample: Sample | SampleBlock) -> list[Sample]:
+    return sample.samples() if isinstance(sample, SampleBlock) else [sample]

@@ -1,4 +1,4 @@
-"""What a framing parser yields: a good ``Sample`` or a ``Fault``, and a ``FaultCounter``.
+"""What a framing parser yields: a good ``Sample`` (or a ``SampleBlock`` of them) or a ``Fault``; a ``FaultCounter``.
 
 Both framings (LP-BUS and CSV lines) share the checks that do not depend on the framing: every
 value finite, time strictly increasing, a restarted sensor clock seen as a new segment
@@ -11,6 +11,8 @@ import math
 from collections import Counter
 from dataclasses import dataclass, field
 from typing import Iterable, Mapping, NamedTuple
+
+import numpy as np
 
 # Every reason a Fault can carry, with what it means. Parsers and the reader use only these.
 FAULT_REASONS: dict[str, str] = {
@@ -57,6 +59,49 @@ class Sample(NamedTuple):
         return {"time_s": self.time_s, **self.values}
 
 
+class SampleBlock:
+    """Good samples in a row as columns, for a consumer that asked for them (the LP-BUS flood path).
+
+    What a run of ``Sample`` objects would hold, without one object per sample; ``samples()``
+    gives those objects. A block never starts a new segment (a restart goes sample by sample).
+
+    Attributes
+    ----------
+    columns
+        ``time_s`` and every other channel by column name: float64 arrays of equal length.
+    """
+
+    __slots__ = ("columns",)
+    new_segment = False
+
+    def __init__(self, columns: dict[str, np.ndarray]):
+        self.columns = columns
+
+    def __len__(self) -> int:
+        return len(self.columns["time_s"])
+
+    def samples(self) -> list[Sample]:
+        """The same samples one ``Sample`` each, as the per-frame path makes them."""
+        names = list(self.columns)[1:]
+        values = zip(*(self.columns[name].tolist() for name in names))
+        return [Sample(time_s, dict(zip(names, row))) for time_s, row in zip(self.columns["time_s"].tolist(), values)]
+
+    def cut(self, stop: int) -> "SampleBlock":
+        """The first ``stop`` samples."""
+        return SampleBlock({name: values[:stop] for name, values in self.columns.items()})
+
+
+def as_samples(items: Iterable[Sample | SampleBlock | Fault]) -> list[Sample | Fault]:
+    """``items`` with each block taken apart into its samples."""
+    out: list[Sample | Fault] = []
+    for item in items:
+        if isinstance(item, SampleBlock):
+            out += item.samples()
+        else:
+            out.append(item)
+    return out
+
+
 @dataclass(frozen=True)
 class Fault:
     """Something in the stream that is not a good sample.
@@ -93,12 +138,12 @@ class FaultCounter:
     counts: Counter = field(default_factory=Counter)
     n_samples: int = 0
 
-    def add(self, item: Sample | Fault) -> None:
+    def add(self, item: Sample | SampleBlock | Fault) -> None:
         """Count one parser output."""
         if isinstance(item, Fault):
             self.counts[item.reason] += 1
         else:
-            self.n_samples += 1
+            self.n_samples += len(item) if isinstance(item, SampleBlock) else 1
 
     def update(self, items: Iterable[Sample | Fault]) -> None:
         """Count several parser outputs."""

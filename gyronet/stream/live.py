@@ -26,8 +26,10 @@ from pathlib import Path
 from typing import Any, Callable, Iterator, Mapping
 
 from gyronet.compensator import Compensator
-from gyronet.stream import FaultCounter, LpBusLayout, Sample, SampleCheck, make_parser
-from gyronet.stream.chunk import RATE_PROBE_SAMPLES, ChunkWriter, RateGate
+from gyronet.stream import Fault, FaultCounter, LpBusLayout, SampleCheck, make_parser
+from gyronet.stream.allocator import fix_mmap_threshold
+from gyronet.stream.chunk import RATE_PROBE_SAMPLES, ChunkWriter, RateGate, n_rows
+from gyronet.stream.events import Sample, SampleBlock
 from gyronet.stream.live_allan import LiveAllan
 from gyronet.stream.lpbus_setup import LpBusSetup, LpBusStart, start_lpbus
 from gyronet.stream.output import LiveWriter, OutputError, output_names, write_summary
@@ -119,6 +121,8 @@ def run_stream(bundle_dir: str | Path, port: str, output: str | Path, protocol: 
     sensor = None
     if protocol == "lpbus" and lpbus is not None:  # issue 13: set the sensor up before the sample loop
         sensor, parser = _start_lpbus(opened, port, lpbus, compensator, resample, check)
+    if protocol == "lpbus":
+        parser.blocks = True  # a flood's frames as columns, decoded at once: the chunk writer takes them as they are
     try:
         out = LiveWriter(output, bundle_dir)
     except OutputError:
@@ -176,17 +180,21 @@ def run_stream(bundle_dir: str | Path, port: str, output: str | Path, protocol: 
     return summary
 
 
-def _good_samples(chunk: list, counter: FaultCounter, gate: RateGate, sink: ChunkWriter) -> list[Sample]:
+def _good_samples(chunk: list, counter: FaultCounter, gate: RateGate, sink: ChunkWriter) -> list[Sample | SampleBlock]:
     """Count a chunk's items, log its faults, and return its samples that are ready (up to ``max_samples``)."""
-    ready: list[Sample] = []
+    ready: list[Sample | SampleBlock] = []
     room = None if sink.max_samples is None else sink.max_samples - sink.out.n_rows
     for item in chunk:
-        counter.add(item)
-        if not isinstance(item, Sample):
+        if isinstance(item, Fault):
+            counter.add(item)
             log.log(logging.WARNING if counter.counts[item.reason] == 1 else logging.DEBUG, "fault: %s", item)
             continue
+        if room is not None and isinstance(item, SampleBlock):
+            # the samples one by one would stop once ready and held reach the room: the rest is not read, nor counted
+            item = item.cut(max(1, room - n_rows(ready) - len(gate.held or ())))
+        counter.add(item)
         ready += gate.push(item)
-        if room is not None and len(ready) >= room:
+        if room is not None and n_rows(ready) >= room:
             break  # what follows is not read, as when the run stopped right after this sample
     return ready
 
@@ -194,7 +202,9 @@ def _good_samples(chunk: list, counter: FaultCounter, gate: RateGate, sink: Chun
 @contextlib.contextmanager
 def _steady_runtime(switch_interval_s: float = 2e-4) -> Iterator[None]:
     """The sample loop with a short GIL switch interval, so that a frame waits at most that long for the Allan
-    worker thread (5 ms by default); on exit, the objects ``run_stream`` froze go back to the collector."""
+    worker thread (5 ms by default), and malloc's mmap threshold fixed, so that the RSS stays flat over hours
+    (:mod:`.allocator`); on exit, the objects ``run_stream`` froze go back to the collector."""
+    fix_mmap_threshold()
     previous_s = sys.getswitchinterval()
     sys.setswitchinterval(switch_interval_s)
     try:

@@ -13,8 +13,9 @@ from __future__ import annotations
 import struct
 from typing import Mapping, NamedTuple, Sequence
 
-from gyronet.stream.events import Fault, Sample, SampleCheck
+from gyronet.stream.events import Fault, Sample, SampleBlock, SampleCheck
 from gyronet.stream.lpbus_layout import DEFAULT_FIELDS, LpBusLayout
+from gyronet.stream.lpbus_run import FrameRun
 
 HEADER_BYTE = 0x3A
 FOOTER = b"\r\n"
@@ -69,6 +70,10 @@ class LpBusParser:
         Longest data block believed, bytes.
     check
         The time and value checks (default ``SampleCheck()``).
+    blocks
+        Good frames in a row (a flood) come out as one ``SampleBlock`` of columns, decoded at
+        once (:mod:`.lpbus_run`), instead of one ``Sample`` each: the same samples, faults and
+        order (``events.as_samples`` takes the blocks apart), for a consumer that takes columns.
 
     Notes
     -----
@@ -77,8 +82,11 @@ class LpBusParser:
     the fixed length still apply to it.
     """
 
-    def __init__(self, layout: LpBusLayout | None = None, max_length: int = 512, check: SampleCheck | None = None):
+    def __init__(self, layout: LpBusLayout | None = None, max_length: int = 512, check: SampleCheck | None = None,
+                 blocks: bool = False):
         self.layout = layout or LpBusLayout()
+        self.blocks = blocks
+        self._run = FrameRun(self.layout)
         self.max_length = max(max_length, self.layout.data_length)
         self.check = check or SampleCheck()
         self._buffer = bytearray()
@@ -94,17 +102,17 @@ class LpBusParser:
         """Bytes read before the sample loop (what followed the set-up's last answer): parsed with the next feed."""
         self._buffer += data
 
-    def feed(self, data: bytes) -> list[Sample | Fault]:
+    def feed(self, data: bytes) -> list[Sample | SampleBlock | Fault]:
         """Parse what ``data`` completes; keep the rest for the next call."""
         self._buffer += data
-        out: list[Sample | Fault] = []
+        out: list[Sample | SampleBlock | Fault] = []
         position = self._consume(out, final=False)
         del self._buffer[:position]
         return self._release(out)
 
-    def flush(self) -> list[Sample | Fault]:
+    def flush(self) -> list[Sample | SampleBlock | Fault]:
         """End of stream (or of a connection): parse what can be, report what is left as cut."""
-        out: list[Sample | Fault] = []
+        out: list[Sample | SampleBlock | Fault] = []
         position = self._consume(out, final=True)
         rest = bytes(self._buffer[position:])
         self._buffer.clear()
@@ -113,7 +121,7 @@ class LpBusParser:
             out.append(Fault("truncated", rest, "stream ended inside a frame"))
         return self._release(out, final=True)
 
-    def _release(self, out: list, final: bool = False) -> list[Sample | Fault]:
+    def _release(self, out: list, final: bool = False) -> list[Sample | SampleBlock | Fault]:
         """``out``, or nothing while the probe is undecided; at the end, the probe judges the frames it has."""
         if self.probe is None and not self._held:
             return out
@@ -145,6 +153,13 @@ class LpBusParser:
                 position += 1
                 continue
             self._flush_garbage(out)
+            # a first-frames check sees every frame: not while it runs
+            if self.blocks and self.probe is None and header.length == self.layout.data_length:
+                block, step = self._run.decode(buffer, position, self.check)
+                if block is not None:
+                    out.append(block)
+                    position += step
+                    continue
             step = self._frame(position, header, out, final)
             if step is None:
                 return position

@@ -24,6 +24,7 @@ emulate: ``PtySensor.write`` (the frame's last byte is in the kernel).
 from __future__ import annotations
 
 import collections
+import itertools
 import json
 import os
 import runpy
@@ -54,7 +55,7 @@ class StreamProbe:
         import gyronet.stream.live as live
         from gyronet.compensator import Compensator
         from gyronet.stream import lpbus_setup
-        from gyronet.stream.events import Sample
+        from gyronet.stream.events import Fault, SampleBlock
 
         self.read_at: collections.deque[float] = collections.deque()
         # reports: LiveAllan.report durations between samples; final_report: the one finish() makes
@@ -81,7 +82,9 @@ class StreamProbe:
                     self.first_read, self.first_read_cpu = start, time.process_time()
                 items = feed(data)
                 self.stage["parse"] += perf() - start
-                self.read_at.extend(start for item in items if isinstance(item, Sample))
+                for item in items:  # a block (the LP-BUS flood path) stands for its samples
+                    if not isinstance(item, Fault):
+                        self.read_at.extend(itertools.repeat(start, len(item) if isinstance(item, SampleBlock) else 1))
                 return items
 
             parser.feed = timed_feed
@@ -147,10 +150,12 @@ class StreamProbe:
 
 
 def _one_item_chunks(original, *args, **kwargs):
+    from gyronet.stream.events import as_samples
+
     chunks = original(*args, **kwargs)
     try:
         for chunk in chunks:
-            for item in chunk:
+            for item in as_samples(chunk):
                 yield [item]
     finally:
         chunks.close()  # closes the port

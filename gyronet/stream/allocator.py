@@ -1,0 +1,35 @@
+"""Keep glibc's malloc from holding on to freed memory over a long live run.
+
+glibc serves a request of at least its mmap threshold (128 KiB at start) with its own ``mmap``,
+given back to the system when freed, but by default it raises the threshold to the size of each
+such block freed, after which blocks of up to that size come from the heap, whose freed middle it
+keeps. Over one hour of 1 kHz data flooded through the live loop in-process, with the Allan
+monitor (without it the RSS stayed flat), the RSS rose 10-14 MB, of which ``malloc_trim(0)`` at
+the end gave back 8-9 MB; with the threshold fixed it rose 3-5 MB. Fixing it once costs nothing
+per sample.
+"""
+from __future__ import annotations
+
+import ctypes
+import logging
+import sys
+
+log = logging.getLogger(__name__)
+
+M_MMAP_THRESHOLD = -3  # mallopt's parameter (glibc malloc.h)
+MMAP_THRESHOLD_BYTES = 128 * 1024  # glibc's own starting value, kept from here on
+
+
+def fix_mmap_threshold(threshold_bytes: int = MMAP_THRESHOLD_BYTES) -> bool:
+    """Fix glibc's mmap threshold (no longer raised as blocks are freed); False where there is no glibc."""
+    if not sys.platform.startswith("linux"):
+        return False
+    try:
+        mallopt = ctypes.CDLL(None).mallopt
+    except (OSError, AttributeError):  # another C library (musl has mallopt as a no-op or not at all)
+        return False
+    mallopt.argtypes, mallopt.restype = [ctypes.c_int, ctypes.c_int], ctypes.c_int
+    done = bool(mallopt(M_MMAP_THRESHOLD, int(threshold_bytes)))
+    if not done:
+        log.debug("mallopt(M_MMAP_THRESHOLD, %d) refused", threshold_bytes)
+    return done
