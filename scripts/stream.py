@@ -21,7 +21,7 @@ def main(cfg: DictConfig) -> None:
                    float(options["allan_every_s"]), options["tb_dir"], options["summary"],
                    float(options["read_timeout_s"]), options["reconnect"], options["clock"], stop=stop,
                    startup=options.get("startup"), resample=bool(options.get("resample", False)),
-                   lpbus=LpBusSetup(**options["lpbus"]))
+                   lpbus=LpBusSetup(**options["lpbus"]), realtime_priority=options.get("realtime_priority"))
 
 
 if __name__ == "__main__":

@@ -6,6 +6,7 @@ The live output must equal the offline path (``Compensator.process`` on the good
 read after their trip through the framing) and the fault counts must equal the emulator's log.
 """
 import json
+import os
 import signal
 import subprocess
 import sys
@@ -581,3 +582,32 @@ def test_emulated_replug_with_a_restarted_clock_through_a_pty(bundle, short_reco
         columns = {c: np.array([row[c] for row in sent]) for c in sent[0]}
         assert_matches_offline(output.iloc[rows].reset_index(drop=True), columns["time_s"], columns["temp_c"],
                                offline(bundle, columns))
+
+
+@pytest.mark.skipif(not hasattr(os, "sched_setscheduler"), reason="SCHED_FIFO is Linux's")
+def test_run_stream_at_a_realtime_priority_equals_offline_and_gives_the_priority_back(bundle, short_recording,
+                                                                                       tmp_path):
+    """realtime_priority runs the loop under SCHED_FIFO (where the OS allows it) and changes no number."""
+    from gyronet.errors import ConfigError
+    from gyronet.stream import FaultPlan, plan_stream
+    from gyronet.stream.live import run_stream
+    from gyronet.stream.priority import use_realtime
+    from gyronet.stream.pty_sensor import play_in_thread
+
+    try:
+        use_realtime(1)()
+    except ConfigError:
+        pytest.skip("this user may not use SCHED_FIFO")
+    recording = load_recording(short_recording)
+    plan = plan_stream(recording.columns, "lpbus", FaultPlan(seed=3))
+    link = tmp_path / "sensor"
+    thread = play_in_thread(plan, link)
+    summary = run_stream(bundle, str(link), tmp_path / "live.csv", allan_every_s=60, tb_dir=tmp_path / "tb",
+                         reconnect={"backoff_s": 0.05, "max_backoff_s": 0.2, "give_up_s": 0.5, "wait_at_start": True},
+                         realtime_priority=20)
+    thread.join(10)
+    assert os.sched_getscheduler(0) == os.SCHED_OTHER
+    assert summary["n_samples"] == len(plan.log["good_indices"])
+    assert set(summary["allan"]) == {"x", "y", "z"}
+    assert_matches_offline(read_output(tmp_path / "live.csv"),
+                           *expected_output(bundle, short_recording, plan.log, "lpbus"))

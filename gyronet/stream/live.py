@@ -28,6 +28,7 @@ from typing import Any, Callable, Iterator, Mapping
 from gyronet.compensator import Compensator
 from gyronet.stream import Fault, FaultCounter, LpBusLayout, SampleCheck, make_parser
 from gyronet.stream.allocator import fix_mmap_threshold
+from gyronet.stream.priority import use_realtime
 from gyronet.stream.chunk import RATE_PROBE_SAMPLES, ChunkWriter, RateGate, n_rows
 from gyronet.stream.events import Sample, SampleBlock
 from gyronet.stream.live_allan import LiveAllan
@@ -50,7 +51,7 @@ def run_stream(bundle_dir: str | Path, port: str, output: str | Path, protocol: 
                clock: Mapping[str, float | None] | None = None,
                stop: Callable[[], bool] | None = None,
                startup: Mapping[str, Any] | None = None, resample: bool = False,
-               lpbus: LpBusSetup | None = None) -> dict:
+               lpbus: LpBusSetup | None = None, realtime_priority: int | None = None) -> dict:
     """``stream.py``: compensate a live stream until told to stop; return the summary.
 
     Parameters
@@ -89,18 +90,22 @@ def run_stream(bundle_dir: str | Path, port: str, output: str | Path, protocol: 
     lpbus
         LP-BUS set-up (:class:`~gyronet.stream.lpbus_setup.LpBusSetup`): configure the sensor, or
         listen and check the first frames; it replaces ``layout``. None: listen with ``layout``.
+    realtime_priority
+        Run the sample loop under ``SCHED_FIFO`` at this priority (1-99, Linux, root or
+        ``CAP_SYS_NICE``; :mod:`.priority`), checked before the port opens; None: the normal scheduler.
 
     Raises
     ------
-    PortError, BundleError
+    PortError, BundleError, ConfigError
         Before any sample is written: a port that cannot be opened, a bundle that does not fit
-        (its columns, or its rate against the stream's).
+        (its columns, or its rate against the stream's), a real-time priority the OS refuses.
     OutputError
         When the output cannot be written (a full disk): after the port is closed and the
         summary written (or logged as impossible); the output ends with a complete line.
     """
     options = dict(reconnect or {})
     wait_at_start = bool(options.pop("wait_at_start", False))
+    use_realtime(realtime_priority)()  # refused now, before the port opens, rather than after the set-up
     compensator = Compensator.load(bundle_dir)
     compensator.use_small_chunks()  # a lone frame in plain floats, not ~30 TorchScript ops
     compensator.use_startup(**dict(startup or {}))
@@ -148,7 +153,7 @@ def run_stream(bundle_dir: str | Path, port: str, output: str | Path, protocol: 
     sink = ChunkWriter(compensator, out, allan, port, max_samples)
     try:
         try:
-            with _steady_runtime():
+            with _steady_runtime(realtime_priority):
                 for chunk in chunks:
                     if sink.write(_good_samples(chunk, counter, gate, sink)):
                         stopped = "max_samples"
@@ -200,16 +205,19 @@ def _good_samples(chunk: list, counter: FaultCounter, gate: RateGate, sink: Chun
 
 
 @contextlib.contextmanager
-def _steady_runtime(switch_interval_s: float = 2e-4) -> Iterator[None]:
+def _steady_runtime(realtime_priority: int | None = None, switch_interval_s: float = 2e-4) -> Iterator[None]:
     """The sample loop with a short GIL switch interval, so that a frame waits at most that long for the Allan
-    worker thread (5 ms by default), and malloc's mmap threshold fixed, so that the RSS stays flat over hours
-    (:mod:`.allocator`); on exit, the objects ``run_stream`` froze go back to the collector."""
+    worker thread (5 ms by default), malloc's mmap threshold fixed, so that the RSS stays flat over hours
+    (:mod:`.allocator`), and the real-time priority asked for (:mod:`.priority`); on exit, the scheduler
+    and the switch interval as they were, and the objects ``run_stream`` froze back to the collector."""
     fix_mmap_threshold()
     previous_s = sys.getswitchinterval()
     sys.setswitchinterval(switch_interval_s)
+    restore_scheduler = use_realtime(realtime_priority)
     try:
         yield
     finally:
+        restore_scheduler()
         sys.setswitchinterval(previous_s)
         gc.unfreeze()
 

@@ -21,6 +21,7 @@ import numpy as np
 
 from gyronet.data import AXES
 from gyronet.errors import GyronetError
+from gyronet.stream.priority import normal_thread
 
 log = logging.getLogger(__name__)
 
@@ -213,6 +214,7 @@ class LiveAllan:
         self._worker.start()
 
     def _background_report(self, step: int, history: tuple[np.ndarray, np.ndarray]) -> None:
+        normal_thread()  # not the real-time priority a stream may run at: the reports must not delay frames
         try:
             os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), 19)  # this thread only (Linux)
         except (AttributeError, OSError):  # another OS: the thread runs at the stream's priority

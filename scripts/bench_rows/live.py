@@ -9,6 +9,7 @@ paced runs at 1 kHz (``speed=1`` on a 1 kHz recording), chunked and per sample, 
 """
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import shutil
@@ -16,7 +17,7 @@ import subprocess
 import sys
 import time
 from pathlib import Path
-from typing import Any
+from typing import Any, Iterator
 
 import numpy as np
 
@@ -49,8 +50,9 @@ def _pinned(cpu: int):
 
 
 def _run_pair(ctx: Context, name: str, recording: Path, bundle: Path, protocol: str, speed: float,
-              n: int, per_sample: bool = False) -> dict[str, Any]:
-    """Emulator and stream under the probe (``per_sample``: one sample a chunk); returns their timing arrays."""
+              n: int, per_sample: bool = False, stream_options: tuple[str, ...] = ()) -> dict[str, Any]:
+    """Emulator and stream under the probe (``per_sample``: one sample a chunk; ``stream_options``: more overrides of
+    stream.py); returns their timing arrays."""
     run_dir = ctx.path(f"stream_{name}")
     shutil.rmtree(run_dir, ignore_errors=True)
     run_dir.mkdir(parents=True)
@@ -72,7 +74,7 @@ def _run_pair(ctx: Context, name: str, recording: Path, bundle: Path, protocol: 
                   # the emulator loads and plans its recording before the pty appears (minutes for 3.6 M rows)
                   f"max_samples={n}", f"reconnect.give_up_s={10 + n // 4_000}", "reconnect.wait_at_start=true",
                   "resample=true",
-                  *ticks, *checks])):
+                  *ticks, *checks, *stream_options])):
             with open(run_dir / f"{role}.log", "w") as log:
                 processes.append(subprocess.Popen(
                     [*python, "emulate" if role == "emulator" else "stream_per_sample" if per_sample else "stream",
@@ -152,10 +154,35 @@ def _rss_figures(rss: np.ndarray) -> dict[str, float]:
             "rss_growth_mb_per_h": float(slope * FS_HZ * 3600.0)}
 
 
+def _realtime_allowed() -> bool:
+    """Whether this user may run stream.py with realtime_priority (SCHED_FIFO)."""
+    from gyronet.errors import ConfigError
+    from gyronet.stream.priority import use_realtime
+
+    try:
+        use_realtime(1)()
+    except ConfigError:
+        return False
+    return True
+
+
+@contextlib.contextmanager
+def _busy_cores() -> Iterator[None]:
+    """A busy Python loop pinned to each core while the block runs: a machine doing other work."""
+    spinners = [subprocess.Popen([sys.executable, "-c", "while True: pass"], preexec_fn=_pinned(cpu))
+                for cpu in (STREAM_CPU, EMULATOR_CPU)]
+    try:
+        yield
+    finally:
+        for spinner in spinners:
+            spinner.kill()
+            spinner.wait()
+
+
 @bench("stream_pty")
 def stream_pty(ctx: Context) -> dict[str, Any]:
     """emulate_sensor.py -> pty -> stream.py, chunked vs per sample: samples/s flooded (goal >= 50,000/s), p99 latency at 1 kHz (< 0.5 ms), RSS."""
-    n_flood, n_paced = ctx.size(120_000, 3_000), ctx.size(300_000, 3_000)
+    n_flood, n_paced, n_busy = ctx.size(120_000, 3_000), ctx.size(300_000, 3_000), ctx.size(60_000, 3_000)
     bundles = {model: trained_bundle(ctx, model) for model in ("default", "poly3")}
     flood, paced_recording = _recording_1khz(ctx, n_flood), _recording_1khz(ctx, n_paced)
     runs = {"lpbus": _run_pair(ctx, "lpbus", flood, bundles["default"], "lpbus", 0, n_flood),
@@ -166,9 +193,17 @@ def stream_pty(ctx: Context) -> dict[str, Any]:
             "paced": _run_pair(ctx, "paced", paced_recording, bundles["default"], "lpbus", 1, n_paced),
             "paced_per_sample": _run_pair(ctx, "paced_per_sample", paced_recording, bundles["default"], "lpbus", 1,
                                           n_paced, per_sample=True)}
+    paced = ["paced", "paced_per_sample"]
+    if _realtime_allowed():  # the same loop with a busy process on each core, at the normal and a real-time priority
+        busy_recording = _recording_1khz(ctx, n_busy)
+        with _busy_cores():
+            for name, options in (("busy", ()), ("busy_realtime", ("realtime_priority=50",))):
+                runs[name] = _run_pair(ctx, name, busy_recording, bundles["default"], "lpbus", 1, n_busy,
+                                       stream_options=options)
+                paced.append(name)
     rate = {k: r["n"] / r["elapsed_s"] for k, r in runs.items()}
-    latency = {k: percentiles_ms(runs[k]["sent_to_write_s"]) for k in ("paced", "paced_per_sample")}
-    memory = {k: _rss_figures(runs[k]["rss"]) for k in ("paced", "paced_per_sample")}
+    latency = {k: percentiles_ms(runs[k]["sent_to_write_s"]) for k in paced}
+    memory = {k: _rss_figures(runs[k]["rss"]) for k in paced}
     stage_us = {k: {stage: 1e6 * v / r["n"] for stage, v in r["stage_s"].items()} for k, r in runs.items()}
     rows_per_write = {k: float(np.mean(r["chunk_rows"])) for k, r in runs.items()}
     cpu_us = {k: 1e6 * r["cpu_s"] / r["n"] for k, r in runs.items()}  # CPU per sample: what the load does not change
@@ -201,6 +236,9 @@ def stream_pty(ctx: Context) -> dict[str, Any]:
         f"(p99 goal < {P99_GOAL_MS:g} ms: {verdict(latency['paced']['p99'] < P99_GOAL_MS)}; RSS goal flat, < "
         f"{RSS_GOAL_MB_PER_H:g} MB/h: {verdict(memory['paced']['rss_growth_mb_per_h'] < RSS_GOAL_MB_PER_H)}); "
         f"per sample: {paced_figures('paced_per_sample')}",
+        *([f"paced at 1 kHz for {n_busy / FS_HZ:.0f} s with a busy process on each core: normal priority p99 "
+           f"{latency['busy']['p99']:.2f} ms, realtime_priority=50 p99 {latency['busy_realtime']['p99']:.2f} ms (goal: "
+           f"{verdict(latency['busy_realtime']['p99'] < P99_GOAL_MS)})"] if "busy" in latency else []),
         f"{len(reports)} live Allan reports while streaming, longest {allan_ms:.0f} ms (the final one, with the "
         f"figure, {runs['paced']['final_report_s']:.1f} s)",
         f"stream pinned to CPU {STREAM_CPU}, emulator to CPU {EMULATOR_CPU}"])
