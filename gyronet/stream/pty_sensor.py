@@ -121,11 +121,14 @@ class PtySensor:
         return True
 
     def close(self) -> None:
-        """Close the pty: a reader's next read fails, as when a USB sensor is unplugged."""
+        """Close the pty: a reader's next read fails, as when a USB sensor is unplugged, and the link goes with it
+        until ``open``: a reader retrying meanwhile must not follow it to the closed device's number, which
+        the kernel may give to another program's pty (an extra ``port_lost`` seen under parallel tests)."""
         for fd in (self.master_fd, self.slave_fd):
             if fd is not None:
                 os.close(fd)
         self.master_fd = self.slave_fd = None
+        self.remove_link()
 
     def remove_link(self) -> None:
         """Remove the symlink (at the end, so a reader sees the sensor gone)."""
