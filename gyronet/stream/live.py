@@ -28,12 +28,12 @@ from typing import Any, Callable, Iterator, Mapping
 from gyronet.compensator import Compensator
 from gyronet.stream import Fault, FaultCounter, LpBusLayout, SampleCheck, make_parser
 from gyronet.stream.allocator import fix_mmap_threshold
-from gyronet.stream.priority import use_realtime
 from gyronet.stream.chunk import RATE_PROBE_SAMPLES, ChunkWriter, RateGate, n_rows
 from gyronet.stream.events import Sample, SampleBlock
 from gyronet.stream.live_allan import LiveAllan
 from gyronet.stream.lpbus_setup import LpBusSetup, LpBusStart, start_lpbus
 from gyronet.stream.output import LiveWriter, OutputError, output_names, write_summary
+from gyronet.stream.priority import use_realtime
 from gyronet.stream.reader import open_port_or_fail, read_chunks
 from gyronet.stream.signals import stop_on_signals
 
