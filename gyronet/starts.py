@@ -114,9 +114,8 @@ def fit_both_starts(model: nn.Module, data: DriftData, optim: Callable | None, o
         on_second = stack_weights(*(held_out_residuals(t, data) for _, _, t in trials))
     weights = np.stack([1.0 - on_second, on_second])[:len(trials)]
     used = [k for k in range(len(trials)) if weights[k].any()]
-    mixed = copy.deepcopy(model)
-    mix_into(mixed, [trials[k][2] for k in used], weights[used])
-    final = {**min((t[0] for t in trials), key=lambda f: f["val/rmse_dps"]), **validation_metrics(mixed, data)}
+    mix_into(model, [trials[k][2] for k in used], weights[used])
+    final = {**min((t[0] for t in trials), key=lambda f: f["val/rmse_dps"]), **validation_metrics(model, data)}
     for a, axis in enumerate(AXES):
         levels = [trials[k][0].get(f"model/level_{axis}") for k in used if weights[k, a] > 0]
         if None not in levels:
@@ -125,11 +124,11 @@ def fit_both_starts(model: nn.Module, data: DriftData, optim: Callable | None, o
         log.info("starts mixed per axis (held-out %s deg/s): weight on %s %s; mixture %.4g deg/s",
                  ", ".join(f"{i} {f['val/rmse_dps']:.4g}" for f, i, _ in trials), trials[-1][1],
                  "/".join(f"{w:.2f}" for w in weights[-1]), final["val/rmse_dps"])
-    if for_bundle:
+    if for_bundle:  # each start continued on every block, then mixed again with the same weights
         plain = {k: v for k, v in options.items() if k != "writer"}
         for k in used:
             _continue_on_every_block(trials[k][2], data, trials[k][0], optim, plain)
-    mix_into(model, [trials[k][2] for k in used], weights[used])
+        mix_into(model, [trials[k][2] for k in used], weights[used])
     weight_of = dict(zip((i for _, i, _ in trials), weights))
     final.update({f"model/{init}_weight_{axis}": float(weight_of[init][a]) if init in weight_of else 0.0
                   for init in CENTER_INITS for a, axis in enumerate(AXES)})

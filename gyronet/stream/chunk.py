@@ -23,7 +23,7 @@ import numpy as np
 
 from gyronet.compensator import Compensator
 from gyronet.small_model import SMALL_ROWS
-from gyronet.stream.events import Sample, SampleBlock
+from gyronet.stream.events import Sample, SampleBlock, as_samples, n_samples
 from gyronet.stream.live_allan import LiveAllan
 from gyronet.stream.output import LiveWriter
 
@@ -117,7 +117,7 @@ class ChunkWriter:
                 self.allan.new_segment(first.time_s)
         done = 0
         if n_rows(samples) <= SMALL_ROWS:
-            samples = [one for sample in samples for one in _samples_of(sample)]
+            samples = as_samples(samples)
             done = self._in_floats(samples)
             if done == len(samples):
                 return
@@ -192,7 +192,7 @@ class ChunkWriter:
 
 def n_rows(samples: Sequence[Sample | SampleBlock]) -> int:
     """How many samples ``samples`` holds, a block counting its length."""
-    return sum(len(sample) if isinstance(sample, SampleBlock) else 1 for sample in samples)
+    return sum(map(n_samples, samples))
 
 
 def first_rows(samples: Sequence[Sample | SampleBlock], stop: int) -> list[Sample | SampleBlock]:
@@ -204,9 +204,5 @@ def first_rows(samples: Sequence[Sample | SampleBlock], stop: int) -> list[Sampl
         if isinstance(sample, SampleBlock) and len(sample) > stop:
             sample = sample.cut(stop)
         out.append(sample)
-        stop -= len(sample) if isinstance(sample, SampleBlock) else 1
+        stop -= n_samples(sample)
     return out
-
-
-def _samples_of(sample: Sample | SampleBlock) -> list[Sample]:
-    return sample.samples() if isinstance(sample, SampleBlock) else [sample]

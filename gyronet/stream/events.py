@@ -91,6 +91,11 @@ class SampleBlock:
         return SampleBlock({name: values[:stop] for name, values in self.columns.items()})
 
 
+def n_samples(item: Sample | SampleBlock) -> int:
+    """How many samples ``item`` stands for: a block its length, a ``Sample`` one."""
+    return len(item) if isinstance(item, SampleBlock) else 1
+
+
 def as_samples(items: Iterable[Sample | SampleBlock | Fault]) -> list[Sample | Fault]:
     """``items`` with each block taken apart into its samples."""
     out: list[Sample | Fault] = []
@@ -143,7 +148,7 @@ class FaultCounter:
         if isinstance(item, Fault):
             self.counts[item.reason] += 1
         else:
-            self.n_samples += len(item) if isinstance(item, SampleBlock) else 1
+            self.n_samples += n_samples(item)
 
     def update(self, items: Iterable[Sample | Fault]) -> None:
         """Count several parser outputs."""

@@ -55,7 +55,7 @@ class StreamProbe:
         import gyronet.stream.live as live
         from gyronet.compensator import Compensator
         from gyronet.stream import lpbus_setup
-        from gyronet.stream.events import Fault, SampleBlock
+        from gyronet.stream.events import Fault, n_samples
 
         self.read_at: collections.deque[float] = collections.deque()
         # reports: LiveAllan.report durations between samples; final_report: the one finish() makes
@@ -84,7 +84,7 @@ class StreamProbe:
                 self.stage["parse"] += perf() - start
                 for item in items:  # a block (the LP-BUS flood path) stands for its samples
                     if not isinstance(item, Fault):
-                        self.read_at.extend(itertools.repeat(start, len(item) if isinstance(item, SampleBlock) else 1))
+                        self.read_at.extend(itertools.repeat(start, n_samples(item)))
                 return items
 
             parser.feed = timed_feed
