@@ -232,7 +232,7 @@ def fit_by_run(model: nn.Module, data: RunsData, optim: Callable | None = None, 
     metrics, folds
         The metrics (``val/rmse_dps`` first of all) and each fold's figures.
     """
-    from gyronet.train import _predict, fit
+    from gyronet.train import fit, predict
     from gyronet.dataset import block_rmse
 
     untrained = copy.deepcopy(model)
@@ -242,7 +242,7 @@ def fit_by_run(model: nn.Module, data: RunsData, optim: Callable | None = None, 
         fold_model = copy.deepcopy(untrained)
         metrics = fit(fold_model, fold_data, optim, seed=seed, **fit_kwargs)
         time_s, x, y = fold_data.val_full
-        residual = y - _predict(fold_model, x)
+        residual = y - predict(fold_model, x)
         low, high = fold_data.temp_range_c
         temp = run.recording.temp_c
         folds.append({"held_out": run.name, "path": run.path,

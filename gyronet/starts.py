@@ -83,10 +83,10 @@ def mix_into(model: nn.Module, parts: Sequence[nn.Module], weights: np.ndarray) 
 
 def held_out_residuals(model: nn.Module, data: DriftData) -> np.ndarray:
     """The held-out 60 s block means of measured minus predicted drift, (m, axes), as ``val/rmse`` squares them."""
-    from gyronet.train import _predict
+    from gyronet.train import predict
 
     time_s, x, y = data.val_full
-    return residual_block_means(time_s, y - _predict(model, x), 60.0)
+    return residual_block_means(time_s, y - predict(model, x), 60.0)
 
 
 def fit_both_starts(model: nn.Module, data: DriftData, optim: Callable | None, options: Mapping[str, Any],

@@ -29,7 +29,8 @@ def lr_at(step: int, total_steps: int, base_lr: float, warmup_steps: int = 50, f
     return base_lr * (final_fraction + (1 - final_fraction) * 0.5 * (1 + math.cos(math.pi * progress)))
 
 
-def _predict(model: torch.nn.Module, x: np.ndarray) -> np.ndarray:
+def predict(model: torch.nn.Module, x: np.ndarray) -> np.ndarray:
+    """The model's drift (deg/s, (n, axes)) on feature rows ``x``, without building a graph."""
     with torch.no_grad():
         # a copy: the cached full-rate features are read-only, which torch warns about
         return model(torch.tensor(x, dtype=torch.float64)).numpy()
@@ -47,7 +48,7 @@ def validation_metrics(model: torch.nn.Module, data: DriftData, full_rate: bool 
         time_s, x, y = data.val_full
     else:
         time_s, x, y = data.val.time_s, data.val.x, data.val.y
-    residual = y - _predict(model, x)
+    residual = y - predict(model, x)
     if getattr(data, "val_adjust", None) is not None:  # e.g. the held-out run's start-up offset (gyronet.runs)
         residual = data.val_adjust(time_s, residual)
     rmse = block_rmse(time_s, residual, 60.0)
@@ -124,14 +125,14 @@ def fit(model: torch.nn.Module, data: DriftData, optim: Callable | None = None, 
     y_norm = (y - model.y_mean) / model.y_std
     best = {"val/rmse_dps": float("inf")}
     best_state, since_best = copy.deepcopy(model.state_dict()), 0
-    predict = model.on_fixed_input(x) if hasattr(model, "on_fixed_input") else lambda: model(x)
+    drift = model.on_fixed_input(x) if hasattr(model, "on_fixed_input") else lambda: model(x)
     bar = tqdm(range(max_epochs), desc="fit", disable=not progress, leave=False, mininterval=1.0)
     for step in bar:
         for group, base in zip(optimizer.param_groups, base_lrs):
             group["lr"] = lr_at(step, max_epochs, base)
         optimizer.zero_grad(set_to_none=True)
         # loss on normalised targets, so every axis counts the same
-        pred = predict() if offsets is None else predict() + offsets()
+        pred = drift() if offsets is None else drift() + offsets()
         loss = torch.mean(((pred - model.y_mean) / model.y_std - y_norm) ** 2)
         if weight_decay:
             loss = loss + weight_decay * (model.head.weight.pow(2).sum() + model.poly.weight.pow(2).sum())

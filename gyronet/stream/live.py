@@ -32,10 +32,11 @@ from gyronet.stream.chunk import RATE_PROBE_SAMPLES, ChunkWriter, RateGate, n_ro
 from gyronet.stream.events import Sample, SampleBlock
 from gyronet.stream.live_allan import LiveAllan
 from gyronet.stream.lpbus_setup import LpBusSetup, LpBusStart, start_lpbus
-from gyronet.stream.output import LiveWriter, OutputError, output_names, write_summary
+from gyronet.stream.output import LiveWriter, OutputError, output_names
 from gyronet.stream.priority import use_realtime
 from gyronet.stream.reader import open_port_or_fail, read_chunks
 from gyronet.stream.signals import stop_on_signals
+from gyronet.stream.summary import write_summary
 
 log = logging.getLogger(__name__)
 

@@ -17,7 +17,7 @@ import numpy as np
 
 from gyronet.compensator import Compensated
 from gyronet.offline import output_columns
-from gyronet.stream.summary import OutputError, write_summary  # noqa: F401 (re-exported)
+from gyronet.stream.summary import OutputError
 
 log = logging.getLogger(__name__)
 
