@@ -54,6 +54,15 @@ def compensate_recording(compensator: Compensator, recording: Recording) -> Comp
     return compensator.process(recording.columns)
 
 
+def run_at_input_rate(compensator: Compensator, recording: Recording, resample: bool = False) -> None:
+    """Refuse (or, with ``resample``, adopt) a recording's rate that is not the bundle's: ``use_input_rate``."""
+    try:
+        fs_hz = recording.fs_hz
+    except ValueError:
+        raise RecordingError(f"{recording.path}: '# fs_hz={recording.meta.get('fs_hz')}' is not a rate in Hz") from None
+    compensator.use_input_rate(fs_hz, resample, str(recording.path))
+
+
 def compensate_file(bundle_dir: str | Path, input_path: str | Path, output_path: str | Path,
                     resample: bool = False, startup: Mapping[str, Any] | None = None) -> dict[str, int]:
     """``compensate.py``: read, compensate, write; return counts for the log.
@@ -64,11 +73,7 @@ def compensate_file(bundle_dir: str | Path, input_path: str | Path, output_path:
     compensator = Compensator.load(bundle_dir)
     compensator.use_startup(**dict(startup or {}))
     recording = load_recording(input_path)
-    try:
-        fs_hz = recording.fs_hz
-    except ValueError:
-        raise RecordingError(f"{recording.path}: '# fs_hz={recording.meta.get('fs_hz')}' is not a rate in Hz") from None
-    compensator.use_input_rate(fs_hz, resample, str(recording.path))
+    run_at_input_rate(compensator, recording, resample)
     out = compensate_recording(compensator, recording)
     if compensator.startup is not None:
         compensator.startup.require_done(str(input_path))

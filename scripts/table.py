@@ -1,4 +1,4 @@
-"""The paper's Table 1 on a held-out recording: python scripts/table.py input=F.csv '+bundles={name: D/compensator}'."""
+"""The paper's Table 1 on held-out recordings: python scripts/table.py input=F.csv '+bundles={name: D/compensator}'."""
 import json
 import logging
 import sys
@@ -6,7 +6,7 @@ from pathlib import Path
 
 from omegaconf import DictConfig, OmegaConf
 
-from gyronet.table import PAPER_TABLE_1, table_rows, to_markdown
+from gyronet.table import PAPER_TABLE_1, held_out_paths, runs_to_markdown, table_rows, table_runs, to_markdown
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # scripts/_cli.py, also when this file is run by path
 from _cli import command  # noqa: E402
@@ -16,13 +16,20 @@ log = logging.getLogger(__name__)
 
 @command("table", "deploy")
 def main(cfg: DictConfig) -> None:
-    rows = table_rows(cfg.input, OmegaConf.to_container(cfg.bundles))
-    markdown = to_markdown(rows)
+    paths = held_out_paths(cfg.get("input"), cfg.data.get("path"), cfg.data.get("paths"))
+    bundles = OmegaConf.to_container(cfg.bundles)
+    options = {"startup": OmegaConf.to_container(cfg.startup, resolve=True), "score_from_s": float(cfg.score_from_s)}
+    if len(paths) == 1:
+        rows = table_rows(paths[0], bundles, **options)
+        markdown, figures = to_markdown(rows), {"input": paths[0], "rows": rows}
+    else:
+        per_run = table_runs(paths, bundles, **options)
+        markdown, figures = runs_to_markdown(per_run), {"inputs": paths, "runs": per_run}
     output = Path(cfg.output)
     output.parent.mkdir(parents=True, exist_ok=True)
     output.write_text(markdown)
-    output.with_suffix(".json").write_text(json.dumps({"input": cfg.input, "rows": rows, "paper": PAPER_TABLE_1}, indent=2))
-    log.info("Table 1 on %s:\n%s", cfg.input, markdown)
+    output.with_suffix(".json").write_text(json.dumps({**figures, **options, "paper": PAPER_TABLE_1}, indent=2))
+    log.info("Table 1 on %s:\n%s", ", ".join(paths), markdown)
 
 
 if __name__ == "__main__":

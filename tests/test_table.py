@@ -5,12 +5,21 @@ import subprocess
 import sys
 
 import numpy as np
+import pytest
 
 from gyronet.data import AXES, load_recording, load_truth
 from gyronet.dataset import block_rmse
-from gyronet.table import table_rows, to_markdown
+from gyronet.errors import BundleError, GyronetError
+from gyronet.sim import simulate, write_simulation
+from gyronet.table import held_out_paths, table_rows, to_markdown
 
-from conftest import ROOT
+from conftest import FAST_FS_HZ, ROOT
+
+
+def _script(*args, cwd=ROOT):
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")])}
+    return subprocess.run([sys.executable, str(ROOT / "scripts" / "table.py"), *map(str, args)],
+                          cwd=cwd, env=env, capture_output=True, text=True)
 
 
 def test_rows_score_each_bundle_against_the_truth(bundle, cycle_csv):
@@ -36,10 +45,7 @@ def test_the_script_writes_markdown_and_json_into_its_run_folder(bundle, cycle_c
     """Without output=, the table goes under hydra.run.dir, not into the folder the command runs in."""
     here, run = tmp_path / "here", tmp_path / "run"
     here.mkdir()
-    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")])}
-    proc = subprocess.run([sys.executable, str(ROOT / "scripts" / "table.py"), f"input={cycle_csv}",
-                           f"+bundles={{gyronet: {bundle}}}", f"hydra.run.dir={run}"],
-                          cwd=here, env=env, capture_output=True, text=True)
+    proc = _script(f"input={cycle_csv}", f"+bundles={{gyronet: {bundle}}}", f"hydra.run.dir={run}", cwd=here)
     assert proc.returncode == 0, proc.stderr[-2000:]
     assert list(here.iterdir()) == []
     out = run / "table1.md"
@@ -53,3 +59,63 @@ def test_the_script_reports_a_missing_bundle_in_one_line(cycle_csv, tmp_path):
                           cwd=ROOT, capture_output=True, text=True)
     assert proc.returncode != 0 and "Traceback" not in proc.stderr
     assert "nope" in proc.stderr
+
+
+@pytest.fixture(scope="module")
+def biased_csv(tmp_path_factory):
+    """Another power-up of the bundle's sensor: a random history with a turn-on bias of its own."""
+    path = tmp_path_factory.mktemp("sim") / "biased.csv"
+    write_simulation(simulate("random", fs_hz=FAST_FS_HZ, seed=7, sensor_seed=0, duration_s=6 * 3600.0,
+                              sensor={"turn_on_bias_dps": 0.05}), path)
+    return path
+
+
+def test_several_runs_get_a_table_each_from_a_fresh_state_and_the_mean(bundle, cycle_csv, biased_csv, tmp_path):
+    """data.paths: each run scored as if alone (the order changes nothing), then residual / floor averaged."""
+    proc = _script(f"data.paths=[{biased_csv},{cycle_csv}]", f"+bundles={{gyronet: {bundle}}}",
+                   f"output={tmp_path / 't.md'}", f"hydra.run.dir={tmp_path}")
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    figures = json.loads((tmp_path / "t.json").read_text())
+    assert list(figures["runs"]) == ["biased", "cycle"]
+    alone = table_rows(cycle_csv, {"gyronet": bundle})
+    np.testing.assert_allclose(figures["runs"]["cycle"]["gyronet"]["ratio_to_floor"], alone["gyronet"]["ratio_to_floor"])
+    markdown = (tmp_path / "t.md").read_text()
+    assert "### biased" in markdown and "### cycle" in markdown and "Mean over the 2 runs" in markdown
+    mean_line = next(line for line in markdown.splitlines() if line.startswith("| gyronet |") and line.count("|") == 6)
+    expected = np.mean([figures["runs"][r]["gyronet"]["ratio_to_floor"] for r in ("biased", "cycle")], axis=0)
+    np.testing.assert_allclose([float(c) for c in mean_line.split("|")[2:5]], expected, atol=0.006)
+
+
+def test_the_startup_offset_removes_a_turn_on_bias_and_its_window_is_not_scored(bundle, biased_csv):
+    plain = table_rows(biased_csv, {"gyronet": bundle})
+    started = table_rows(biased_csv, {"gyronet": bundle}, startup={"still_s": 600})
+    assert max(started["gyronet"]["ratio_to_floor"]) < 0.5 * max(plain["gyronet"]["ratio_to_floor"])
+    # every row, raw included, is scored from the window's end: raw is not offset, only cut
+    cut = table_rows(biased_csv, {}, score_from_s=600)
+    assert started["Raw"] == cut["Raw"] and started["Raw"] != plain["Raw"]
+    with pytest.raises(GyronetError, match="nothing left to score"):
+        table_rows(biased_csv, {}, score_from_s=1e6)
+
+
+def test_a_recording_without_truth_is_scored_against_its_own_floor(bundle, cycle_csv, tmp_path):
+    """A real run has no truth: the floor is its own Allan deviation at 60 s in its cold dwell (gyronet.campaign)."""
+    bare = tmp_path / "bare.csv"
+    bare.write_text(cycle_csv.read_text())  # the recording alone, no truth beside it
+    rows = table_rows(bare, {"gyronet": bundle})
+    with_truth = table_rows(cycle_csv, {"gyronet": bundle})
+    assert rows["gyronet"]["arw_deg_rthr"] == with_truth["gyronet"]["arw_deg_rthr"]
+    assert "Noise only (truth)" not in rows and "drift_error_dps" not in rows["gyronet"]
+    # the drift is gone down to near the noise; raw is far above it on every axis
+    assert max(rows["gyronet"]["ratio_to_floor"]) < 3.0
+    assert all(r > 5 * g for r, g in zip(rows["Raw"]["ratio_to_floor"], rows["gyronet"]["ratio_to_floor"]))
+
+
+def test_held_out_recordings_are_named_once_and_rates_must_match(bundle, tmp_path):
+    assert held_out_paths("a.csv") == ["a.csv"] and held_out_paths(paths=["a.csv", "b.csv"]) == ["a.csv", "b.csv"]
+    for given in ({}, {"input_path": "a.csv", "paths": ["b.csv"]}, {"path": "a.csv", "input_path": "a.csv"}):
+        with pytest.raises(GyronetError, match="give the held-out recording"):
+            held_out_paths(**given)
+    fast = tmp_path / "fast.csv"
+    write_simulation(simulate("paper", fs_hz=4 * FAST_FS_HZ, seed=3, sensor_seed=0, duration_s=3600.0), fast)
+    with pytest.raises(BundleError, match="Hz"):
+        table_rows(fast, {"gyronet": bundle})
