@@ -14,15 +14,14 @@ import numpy as np
 import pytest
 
 from gyronet.compensator import Compensator
-from gyronet.data import AXES, Recording, load_recording, load_truth
-from gyronet.dataset import block_rmse
+from gyronet.data import AXES, Recording, load_recording
 from gyronet.diagnose import (CandidateGrid, ScreenRows, candidate_specs, diagnose, effect_kind, filter_tau, screen,
                               shift_fractions)
+from gyronet.diagnose.effects import check_bundle
 from gyronet.features import feature_name
 from gyronet.model import RBFNet
 from gyronet.sim import first_order_lag, simulate, write_simulation
 from gyronet.sim.noise import ou_process
-from gyronet.train import residual_report
 
 from conftest import FAST_FS_HZ, ROOT, SHARED
 
@@ -115,17 +114,11 @@ def _diagnose(path: Path, out: Path, n_centers: int = 12, **options) -> dict:
 
 
 def _drift_error(bundle: Path, path: Path) -> tuple[float, dict]:
-    """RMS over axes of the 60 s drift-estimate error against the truth, and the residual report,
-    on the samples inside the trained temperature range (outside, the compensator flags them)."""
-    recording, truth = load_recording(path), load_truth(path).columns
-    out = Compensator.load(bundle).process(recording.columns)
-    inside = ~out.out_of_range
-    assert inside.mean() > 0.8
-    time_s = recording.time_s[inside]
-    true_drift = np.column_stack([truth[f"drift_{a}_dps"] for a in AXES])
-    error = block_rmse(time_s, (out.drift_dps - true_drift)[inside], 60.0)
-    report = residual_report(time_s, out.rate_dps[inside], {k: v[inside] for k, v in truth.items()})
-    return float(np.sqrt(np.mean(error**2))), report
+    """RMS over axes of the 60 s drift-estimate error against the truth, and the check (its
+    ``ratio_to_floor``), on the samples inside the trained temperature range (the README's table)."""
+    checked = check_bundle(bundle, path)
+    assert checked["inside_share"] > 0.8
+    return checked["drift_error_all_dps"], checked
 
 
 def _check_shape(diagnosis: dict) -> None:
