@@ -29,11 +29,14 @@ log = logging.getLogger(__name__)
 
 _MIN_WIDTH = 1e-3
 # forward selection's candidate Gaussians: centres every 1 degC of the trained range, these widths
-# (times ``width_init``), from a sharp bias knee to a broad bend. Narrower ones fit the noise: on one
-# pass through the temperatures a degC is a minute of the record (2-3 degC: up to 1.37x on Table 1's x)
+# (times ``width_init``), from a sharp bias knee to a broad bend. Alone, narrower ones fit the noise: on
+# one pass through the temperatures a degC is a minute of the record (2-3 degC: up to 1.37x on Table
+# 1's x); but a knee 2.5 degC wide needs them (2.5x the floor without), so "ols_narrow" adds them as a
+# start of its own, which the held-out stacking weighs against the others (gyronet/starts.py)
 OLS_STEP_C = 1.0
 OLS_WIDTHS_C = (4.0, 6.0, 8.0, 11.0, 16.0)
-CENTER_INITS = ("kmeans", "ols")
+OLS_NARROW_WIDTHS_C = (2.5, 3.0) + OLS_WIDTHS_C
+CENTER_INITS = ("kmeans", "ols", "ols_narrow")
 
 
 class _Gaussians1D(torch.autograd.Function):
@@ -70,7 +73,8 @@ class RBFNet(nn.Module):
         Number of Gaussian units.
     width_init
         Initial width: with ``center_init="kmeans"`` a multiple of the mean distance from a centre
-        to its nearest neighbour; with ``"ols"`` a factor on the candidate widths ``OLS_WIDTHS_C``.
+        to its nearest neighbour; with ``"ols"`` a factor on the candidate widths ``OLS_WIDTHS_C``
+        (``OLS_NARROW_WIDTHS_C`` with ``"ols_narrow"``).
     rbf_inputs
         Indices of the inputs that feed the Gaussians; all when None.
     linear
@@ -96,13 +100,15 @@ class RBFNet(nn.Module):
         How training starts the Gaussians: ``"kmeans"``, centres where the data are (k-means++)
         and one shared width; or ``"ols"``, forward selection by orthogonal least squares from
         candidates on a temperature grid at several widths, each picked for how much of the
-        training target the other terms leave it explains (Gaussians on temperature only).
+        training target the other terms leave it explains (Gaussians on temperature only); or
+        ``"ols_narrow"``, the same with candidates down to 2.5 degC wide.
     validate_init
-        One recording: a validated fit from each ``center_init``, mixed per axis with the weight
-        that minimises the held-out blocks' error (``gyronet.starts``; the bundle holds both sets
-        of Gaussians unless one start wins on every axis); several runs and fixed-budget fits use
-        ``center_init``. Neither start is better on every sensor: forward selection finds a sharp
-        knee that k-means centres miss, k-means centres follow a broad bend with less noise.
+        One recording: a validated fit from each ``center_init``, mixed per axis with the weights
+        that minimise the held-out blocks' error (``gyronet.starts``; the bundle holds the Gaussians
+        of every start with a weight on some axis); several runs and fixed-budget fits use
+        ``center_init``. No start is better on every sensor: forward selection finds a sharp knee
+        that k-means centres miss, k-means centres follow a broad bend with less noise, and only
+        the narrow candidates follow a knee 2-3 degC wide.
     """
 
     def __init__(self, n_inputs: int, n_outputs: int = 3, n_centers: int = 32, width_init: float = 1.0,
@@ -119,9 +125,9 @@ class RBFNet(nn.Module):
         self.use_linear, self.temp_degree, self.temp_index, self.clamp = linear, int(temp_degree), temp_index, clamp
         self.select_capacity, self.refit_all = bool(select_capacity), bool(refit_all)
         self.center_init, self.validate_init = center_init, bool(validate_init)
-        # training keeps every width at or above this (normalised units); ``"ols"`` sets it to its narrowest candidate
+        # training keeps every width at or above this (normalised units); ``"ols*"`` set it to their narrowest candidate
         self.train_min_width = _MIN_WIDTH
-        if (center_init == "ols" or self.validate_init) and self.rbf_inputs != [temp_index]:
+        if (center_init != "kmeans" or self.validate_init) and self.rbf_inputs != [temp_index]:
             raise ValueError("center_init='ols' selects Gaussians on temperature only: set rbf_inputs to [temp_index]")
         n_rbf = len(self.rbf_inputs)
         dtype = torch.float64
@@ -223,7 +229,7 @@ class RBFNet(nn.Module):
         self.z_low.copy_(z.min(0).values)
         self.z_high.copy_(z.max(0).values)
         r = z[:, self.rbf_index]
-        if self.center_init == "ols":
+        if self.center_init != "kmeans":
             self._select_centers(x, y)
         else:
             self.centers.copy_(_kmeans_pp(r, self.n_centers, generator))
@@ -246,7 +252,8 @@ class RBFNet(nn.Module):
         seen = torch.sort(temp).values
         after = torch.bucketize(grid, seen).clamp(1, len(seen) - 1)
         grid = grid[torch.minimum(grid - seen[after - 1], seen[after] - grid).abs() <= step]
-        widths = torch.tensor(OLS_WIDTHS_C, dtype=x.dtype) * self.width_init / scale_c
+        widths_c = OLS_NARROW_WIDTHS_C if self.center_init == "ols_narrow" else OLS_WIDTHS_C
+        widths = torch.tensor(widths_c, dtype=x.dtype) * self.width_init / scale_c
         centre_of = grid.repeat(len(widths))
         width_of = widths.repeat_interleave(len(grid))
         _, lin, powers = self.parts(x)  # the other terms' regressors; the Gaussians' values are unused

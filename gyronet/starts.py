@@ -1,18 +1,19 @@
-"""Two starts of the default network, mixed per axis by held-out stacking (``RBFNet.validate_init``).
+"""Three starts of the default network, mixed per axis by held-out stacking (``RBFNet.validate_init``).
 
-On one recording the early-stopped fit runs from the k-means centres and from the forward-selected
-(OLS) ones. Neither start is better on every sensor, and on one cooling pass the held-out blocks
-cannot always tell which one carries over to another thermal history: at temperatures passed only
-on a ramp, Gaussians can stand in for the dT/dt terms, and every block of that pass agrees. So
-rather than keep one start, the bundle is their convex combination per axis, with the weight that
-minimises the held-out blocks' error (stacked regression with two models and weights summing to
-one). Keeping one start is the special case of a weight 0 or 1, so on the held-out blocks the
-mixture is never worse than the better start; where both fit the blocks alike it hedges.
+On one recording the early-stopped fit runs from the k-means centres and from two forward-selected
+(OLS) sets: candidates 4 degC wide and more, and candidates down to 2.5 degC. No start is better on
+every sensor, and on one cooling pass the held-out blocks cannot always tell which one carries over
+to another thermal history: at temperatures passed only on a ramp, Gaussians can stand in for the
+dT/dt terms, and every block of that pass agrees. So rather than keep one start, the bundle is
+their convex combination per axis, with the weights that minimise the held-out blocks' error
+(stacked regression, weights at least 0 and summing to one). Keeping one start is the special case
+of a weight 1, so on the held-out blocks the mixture is never worse than the best start; where the
+starts fit the blocks alike it hedges.
 
-The mixture is itself one ``RBFNet``: both sets of Gaussians side by side, each output row weighted.
-Both fits normalise by the same data and share the trained box, so the sum is exact, and the
-bundle, its TorchScript and a C export compute it like any other network. A start whose weight is
-zero on every axis is left out, so the bundle keeps 12 centres when one start wins everywhere.
+The mixture is itself one ``RBFNet``: the starts' Gaussians side by side, each output row weighted.
+The fits normalise by the same data and share the trained box, so the sum is exact, and the bundle,
+its TorchScript and a C export compute it like any other network. A start whose weight is zero on
+every axis is left out, so the bundle keeps 12 centres when one start wins everywhere.
 
 References
 ----------
@@ -21,6 +22,7 @@ L. Breiman, "Stacked regressions", Machine Learning 24(1), 1996.
 from __future__ import annotations
 
 import copy
+import itertools
 import logging
 from typing import Any, Callable, Mapping, Sequence
 
@@ -36,24 +38,39 @@ log = logging.getLogger(__name__)
 _SHARED_BUFFERS = ("x_mean", "x_std", "z_low", "z_high", "y_mean", "y_std", "rbf_index")
 
 
-def stack_weights(first: np.ndarray, second: np.ndarray) -> np.ndarray:
-    """Per axis, the weight w in [0, 1] on ``second`` that minimises |(1 - w) first + w second|^2.
+def stack_weights(*residuals: np.ndarray) -> np.ndarray:
+    """Per axis, weights w_k >= 0 summing to one that minimise |sum_k w_k residuals[k]|^2.
 
     Parameters
     ----------
-    first, second
-        Two models' held-out residuals, (m, axes): block means of measured minus predicted.
+    residuals
+        Each model's held-out residuals, (m, axes): block means of measured minus predicted.
 
     Returns
     -------
     numpy.ndarray
-        (axes,) weights on ``second``; 0 where the two residuals are the same.
+        (models, axes) weights. Every support is tried (a handful of models): on a support the
+        optimum with the sum fixed is w ~ G^-1 1 (G the residuals' Gram matrix), kept if no weight
+        is negative; at a tie the earlier models win, so identical residuals give the first all.
     """
-    diff = second - first
-    energy = (diff * diff).sum(0)
-    # d/dw |first + w diff|^2 = 0  ->  w = -first . diff / |diff|^2
-    weight = np.where(energy > 0, -(first * diff).sum(0) / np.where(energy > 0, energy, 1.0), 0.0)
-    return np.clip(weight, 0.0, 1.0)
+    stacked = np.stack(residuals)  # (models, m, axes)
+    weights = np.zeros((len(residuals), stacked.shape[2]))
+    supports = [list(s) for size in range(1, len(residuals) + 1)
+                for s in itertools.combinations(range(len(residuals)), size)]
+    for a in range(stacked.shape[2]):
+        best = np.inf
+        for support in supports:
+            r = stacked[support, :, a].T  # (m, |support|)
+            w = np.linalg.lstsq(r.T @ r, np.ones(len(support)), rcond=None)[0]
+            if w.sum() <= 0 or (w < 0).any():
+                continue
+            w = w / w.sum()
+            error = float(np.sum((r @ w) ** 2))
+            if error < best * (1 - 1e-12):  # a tie (to rounding) keeps the smaller, earlier support
+                best = error
+                weights[:, a] = 0.0
+                weights[support, a] = w
+    return weights
 
 
 @torch.no_grad()
@@ -89,7 +106,7 @@ def held_out_residuals(model: nn.Module, data: DriftData) -> np.ndarray:
     return residual_block_means(time_s, y - predict(model, x), 60.0)
 
 
-def fit_both_starts(model: nn.Module, data: DriftData, optim: Callable | None, options: Mapping[str, Any],
+def fit_every_start(model: nn.Module, data: DriftData, optim: Callable | None, options: Mapping[str, Any],
                     for_bundle: bool) -> dict[str, float]:
     """A validated fit from each ``center_init``, mixed per axis by the held-out blocks, into ``model``.
 
@@ -106,13 +123,9 @@ def fit_both_starts(model: nn.Module, data: DriftData, optim: Callable | None, o
         trial.center_init, trial.validate_init = init, False
         try:
             trials.append((fit(trial, data, optim, **options), init, trial))
-        except SelectionError as err:  # a narrow range: the other start alone
+        except SelectionError as err:  # a narrow range: the other starts alone
             log.info("no %s start (%s)", init, err)
-    if len(trials) == 1:
-        on_second = np.zeros(len(AXES))
-    else:
-        on_second = stack_weights(*(held_out_residuals(t, data) for _, _, t in trials))
-    weights = np.stack([1.0 - on_second, on_second])[:len(trials)]
+    weights = stack_weights(*(held_out_residuals(t, data) for _, _, t in trials))
     used = [k for k in range(len(trials)) if weights[k].any()]
     mix_into(model, [trials[k][2] for k in used], weights[used])
     final = {**min((t[0] for t in trials), key=lambda f: f["val/rmse_dps"]), **validation_metrics(model, data)}
@@ -121,9 +134,10 @@ def fit_both_starts(model: nn.Module, data: DriftData, optim: Callable | None, o
         if None not in levels:
             final[f"model/level_{axis}"] = float(max(levels))
     if len(trials) > 1:
-        log.info("starts mixed per axis (held-out %s deg/s): weight on %s %s; mixture %.4g deg/s",
-                 ", ".join(f"{i} {f['val/rmse_dps']:.4g}" for f, i, _ in trials), trials[-1][1],
-                 "/".join(f"{w:.2f}" for w in weights[-1]), final["val/rmse_dps"])
+        log.info("starts mixed per axis (held-out %s deg/s): weights x/y/z %s; mixture %.4g deg/s",
+                 ", ".join(f"{i} {f['val/rmse_dps']:.4g}" for f, i, _ in trials),
+                 ", ".join(f"{i} " + "/".join(f"{w:.2f}" for w in row) for (_, i, _), row in zip(trials, weights)),
+                 final["val/rmse_dps"])
     if for_bundle:  # each start continued on every block, then mixed again with the same weights
         plain = {k: v for k, v in options.items() if k != "writer"}
         for k in used:
@@ -135,4 +149,4 @@ def fit_both_starts(model: nn.Module, data: DriftData, optim: Callable | None, o
     return final
 
 
-__all__ = ["fit_both_starts", "held_out_residuals", "mix_into", "stack_weights"]
+__all__ = ["fit_every_start", "held_out_residuals", "mix_into", "stack_weights"]

@@ -110,9 +110,9 @@ def fit(model: torch.nn.Module, data: DriftData, optim: Callable | None = None, 
             and getattr(data, "held_out", None) is None):
         options = dict(max_epochs=max_epochs, patience=patience, eval_every=eval_every, seed=seed,
                        weight_decay=weight_decay, progress=progress, threads=threads)
-        from gyronet.starts import fit_both_starts
+        from gyronet.starts import fit_every_start
 
-        return fit_both_starts(model, data, optim, {**options, "writer": writer}, for_bundle)
+        return fit_every_start(model, data, optim, {**options, "writer": writer}, for_bundle)
     if warm_start:
         _widen_box(model, x)
     elif offsets is None:

@@ -9,7 +9,7 @@ from torch.testing import assert_close
 from gyronet.baselines import LinearFeatures, TempPolynomial
 from gyronet.dataset import Blocks
 from gyronet.export import load_bundle, save_bundle
-from gyronet.model import OLS_WIDTHS_C, RBFNet, forward_select
+from gyronet.model import CENTER_INITS, OLS_NARROW_WIDTHS_C, OLS_WIDTHS_C, RBFNet, forward_select
 from gyronet.starts import held_out_residuals, mix_into, stack_weights
 from gyronet.train import fit, validation_metrics
 
@@ -199,6 +199,19 @@ def test_ols_initialisation_fits_a_sharp_knee_that_kmeans_centres_miss():
     assert float(widths_c.min()) >= OLS_WIDTHS_C[0] - 1e-9  # the candidates' widths, in degC
 
 
+def test_the_narrow_start_follows_a_knee_2_5_degC_wide_that_the_ols_candidates_cannot():
+    x, y, _ = _knee_data(width_c=2.5)
+    misfit, floor_c = {}, {}
+    for init in ("ols", "ols_narrow"):
+        model = RBFNet(3, 3, 6, rbf_inputs=[0], linear=True, temp_degree=3, clamp=True, center_init=init)
+        model.init_from_data(x, y, torch.Generator().manual_seed(0))
+        with torch.no_grad():
+            misfit[init] = float((model(x) - y)[:, :2].pow(2).mean().sqrt())
+        floor_c[init] = model.train_min_width * float(model.x_std[0])  # training's width floor, degC
+    assert misfit["ols_narrow"] < 0.8 * misfit["ols"], misfit  # 0.66 here
+    assert floor_c == pytest.approx({"ols": OLS_WIDTHS_C[0], "ols_narrow": OLS_NARROW_WIDTHS_C[0]})
+
+
 def test_ols_centres_stay_out_of_a_gap_in_the_training_temperatures():
     """A held-out span leaves a gap; a Gaussian centred there would be fitted by its tails alone."""
     x, y, _ = _knee_data(knee_c=-5.0)
@@ -230,32 +243,45 @@ def test_stack_weights_minimise_the_held_out_error_of_the_mixture_per_axis():
     first = rng.normal(size=(50, 3)) + np.array([0.0, 2.0, -1.0])
     second = rng.normal(size=(50, 3)) + np.array([0.0, -1.0, -3.0])
     second[:, 2] = 2 * first[:, 2]  # twice the error everywhere on z: the weight stops at 0
-    weights = stack_weights(first, second)
+    weights = stack_weights(first, second)[1]
     grid = np.linspace(0.0, 1.0, 2001)
     error = [(((1 - w) * first + w * second) ** 2).sum(0) for w in grid]
     assert_close(torch.tensor(weights), torch.tensor(grid[np.argmin(error, axis=0)]), atol=1e-3, rtol=0)
     assert 0.0 < weights[0] < 1.0 and weights[2] == 0.0
-    assert stack_weights(first, first).tolist() == [0.0, 0.0, 0.0]
+    assert stack_weights(first, first).tolist() == [[1.0, 1.0, 1.0], [0.0, 0.0, 0.0]]
 
 
-def test_validate_init_mixes_the_two_starts_per_axis_by_their_held_out_residuals(tmp_path):
-    """The bundle is one network: (1 - w) k-means fit + w OLS fit per axis, w stacked on the held-out blocks."""
+def test_stack_weights_of_three_models_are_the_best_point_of_the_simplex():
+    rng = np.random.default_rng(1)
+    parts = [rng.normal(size=(40, 3)) + shift for shift in (np.array([1.0, 0.0, 2.0]), np.array([-1.0, 0.5, 2.5]),
+                                                              np.array([0.2, -0.5, 3.0]))]
+    weights = stack_weights(*parts)
+    assert (weights >= 0).all() and np.allclose(weights.sum(0), 1.0)
+    step = np.linspace(0.0, 1.0, 201)
+    grid = np.array([(a, b, 1 - a - b) for a in step for b in step if a + b <= 1 + 1e-12])  # (points, 3)
+    error = ((np.einsum("pk,kma->pma", grid, np.stack(parts))) ** 2).sum(1)  # (points, axes)
+    best = (np.einsum("ka,kma->ma", weights, np.stack(parts)) ** 2).sum(0)
+    assert (best <= error.min(0) + 1e-9).all()
+
+
+def test_validate_init_mixes_the_starts_per_axis_by_their_held_out_residuals(tmp_path):
+    """The bundle is one network: sum_k w_k start_k per axis, the w stacked on the held-out blocks."""
     x, y, _ = _knee_data()
     data = _blocks(x, y)
     alone = {}
-    for init in ("kmeans", "ols"):
+    for init in CENTER_INITS:
         alone[init] = RBFNet(3, 3, 6, rbf_inputs=[0], linear=True, temp_degree=3, clamp=True, center_init=init)
         fit(alone[init], data, max_epochs=100, progress=False)
     model = RBFNet(3, 3, 6, rbf_inputs=[0], linear=True, temp_degree=3, clamp=True, validate_init=True)
     metrics = fit(model, data, max_epochs=100, progress=False)
-    weights = stack_weights(*(held_out_residuals(alone[i], data) for i in ("kmeans", "ols")))
-    assert [metrics[f"model/ols_weight_{a}"] for a in "xyz"] == weights.tolist()
-    assert 0.0 < weights[0] < 1.0  # neither start alone: the x knee
+    weights = stack_weights(*(held_out_residuals(alone[i], data) for i in CENTER_INITS))
+    assert [[metrics[f"model/{i}_weight_{a}"] for a in "xyz"] for i in CENTER_INITS] == weights.tolist()
+    assert weights[:, 0].max() < 1.0  # no start alone: the x knee
     with torch.no_grad():
-        mixture = (1 - torch.tensor(weights)) * alone["kmeans"](x) + torch.tensor(weights) * alone["ols"](x)
+        mixture = sum(torch.tensor(w) * alone[i](x) for i, w in zip(CENTER_INITS, weights))
         assert_close(model(x), mixture, rtol=0, atol=1e-12)
     assert metrics["val/rmse_dps"] <= min(validation_metrics(m, data)["val/rmse_dps"] for m in alone.values())
-    assert model.n_centers == 12
+    assert model.n_centers == 6 * weights.any(axis=1).sum()  # a start with no weight is left out
     meta = {"features": [], "fs_hz": 10.0, "temp_range_c": [-40, 60]}
     loaded = load_bundle(save_bundle(model, meta, tmp_path / "b"))[0]
     assert_close(loaded(x), model(x).detach())
