@@ -54,13 +54,18 @@ def compensate_recording(compensator: Compensator, recording: Recording) -> Comp
     return compensator.process(recording.columns)
 
 
-def run_at_input_rate(compensator: Compensator, recording: Recording, resample: bool = False) -> None:
-    """Refuse (or, with ``resample``, adopt) a recording's rate that is not the bundle's: ``use_input_rate``."""
+def compensate_as_deployed(compensator: Compensator, recording: Recording, resample: bool = False) -> Compensated:
+    """A whole recording as ``compensate.py`` runs it: a rate not the bundle's refused (or, with
+    ``resample``, adopted: ``use_input_rate``), from a fresh state, a start-up window required to end."""
     try:
         fs_hz = recording.fs_hz
     except ValueError:
         raise RecordingError(f"{recording.path}: '# fs_hz={recording.meta.get('fs_hz')}' is not a rate in Hz") from None
     compensator.use_input_rate(fs_hz, resample, str(recording.path))
+    out = compensate_recording(compensator, recording)
+    if compensator.startup is not None:
+        compensator.startup.require_done(str(recording.path))
+    return out
 
 
 def compensate_file(bundle_dir: str | Path, input_path: str | Path, output_path: str | Path,
@@ -73,10 +78,7 @@ def compensate_file(bundle_dir: str | Path, input_path: str | Path, output_path:
     compensator = Compensator.load(bundle_dir)
     compensator.use_startup(**dict(startup or {}))
     recording = load_recording(input_path)
-    run_at_input_rate(compensator, recording, resample)
-    out = compensate_recording(compensator, recording)
-    if compensator.startup is not None:
-        compensator.startup.require_done(str(input_path))
+    out = compensate_as_deployed(compensator, recording, resample)
     write_compensated(output_path, output_columns(recording.time_s, recording.temp_c, out), bundle_dir)
     n_oor = int(out.out_of_range.sum())
     if n_oor:

@@ -14,7 +14,7 @@ from gyronet.compensator import Compensator
 from gyronet.data import AXES, Recording, load_recording, load_truth, truth_path
 from gyronet.dataset import block_rmse
 from gyronet.errors import GyronetError
-from gyronet.offline import compensate_recording, run_at_input_rate
+from gyronet.offline import compensate_as_deployed
 from gyronet.runs import run_name
 from gyronet.train import residual_report
 
@@ -75,10 +75,7 @@ def table_rows(input_path: str | Path, bundles: Mapping[str, str | Path], startu
         log.info("table: %s <- %s on %s", name, bundle, input_path)
         compensator = Compensator.load(bundle)
         compensator.use_startup(**startup)
-        run_at_input_rate(compensator, recording)
-        out = compensate_recording(compensator, recording)
-        if compensator.startup is not None:
-            compensator.startup.require_done(str(input_path))
+        out = compensate_as_deployed(compensator, recording)
         rows[name] = row(out.rate_dps, out.drift_dps)
     return rows
 
