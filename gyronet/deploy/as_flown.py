@@ -1,22 +1,25 @@
 """The error each flight stack's users get from a cubic: PX4's 1 Hz / 1 degC offset schedule, ArduPilot's boot calibration.
 
-PX4 does not apply its cubic per sample. Read from PX4-Autopilot (main, 2024; the logic is the
-same at af44da25f0, the commit ``gyronet/px4.py`` cites):
+PX4 does not apply its cubic per sample. Read from PX4-Autopilot's source as the fork
+m4v3r/PX4-Arrow holds it at 86822171b9 (2023-08; lines below are that commit's), and the same
+logic in PX4-Autopilot main (``TemperatureCompensation.cpp`` at 09f282b282,
+``TemperatureCompensationModule.cpp`` at 023e613467, ``Gyroscope.cpp`` at 04214a347e):
 
 - ``src/modules/temperature_compensation/TemperatureCompensationModule.cpp``: ``init()`` runs the
-  module on a 1 s interval (``ScheduleOnInterval(1_s)``); each run, ``gyroPoll()`` takes the newest
-  ``sensor_gyro`` sample, if there is one since the last run (``_gyro_subs[i].update()``), and
-  calls ``update_offsets_gyro`` with its temperature; ``Run()`` publishes ``sensor_correction``
-  only when an update returned 2.
-- ``src/modules/temperature_compensation/TemperatureCompensation.cpp`` ``update_offsets_gyro``:
-  the offset is recomputed (``calc_thermal_offsets_3D``) at every run, but it returns 2 (publish)
-  only if ``fabsf(temperature - last_temperature) > 1.0f``, and then sets ``last_temperature`` to
-  this temperature. ``TemperatureCompensation.h`` ``PerSensorData``: ``last_temperature`` starts
-  at -100 degC (and ``reset_temperature()`` sets it back on every parameter change), so the first
-  run publishes.
-- ``src/lib/sensor_calibration/Gyroscope.cpp`` ``SensorCorrectionsUpdate``: the consumer copies the
-  published offset into ``_thermal_offset``; ``Gyroscope.hpp`` ``Correct()`` subtracts it from every
-  sample until the next publication.
+  module on a 1 s interval (line 384, ``ScheduleOnInterval(1_s)``); each run, ``gyroPoll()`` takes
+  the newest ``sensor_gyro`` sample, if there is one since the last run (line 173,
+  ``_gyro_subs[uorb_index].update()``), and calls ``update_offsets_gyro`` with its temperature (line
+  176); ``Run()`` publishes ``sensor_correction`` only when an update returned 2 (lines 348-353).
+- ``src/modules/temperature_compensation/TemperatureCompensation.cpp`` ``update_offsets_gyro``
+  (lines 448-472): the offset is recomputed (``calc_thermal_offsets_3D``, line 463) at every run,
+  but it returns 2 (publish) only if ``fabsf(temperature - last_temperature) > 1.0f`` (line 466),
+  and then sets ``last_temperature`` to this temperature (line 467). ``TemperatureCompensation.h``
+  ``PerSensorData``: ``last_temperature`` starts at -100 degC (line 269), and ``reset_temperature()``
+  (line 276, called from ``parameters_update``, ``TemperatureCompensation.cpp`` line 298) sets it
+  back on every parameter change, so the first run publishes.
+- ``src/lib/sensor_calibration/Gyroscope.cpp`` ``SensorCorrectionsUpdate`` (lines 72-99): the
+  consumer copies the published offset into ``_thermal_offset``; ``Gyroscope.hpp`` ``Correct()``
+  (line 83) subtracts it from every sample until the next publication.
 
 So between publications the offset of the last published temperature is held, and the sample
 the module read was already corrected (the gyro's own work queue runs first), so a new offset
@@ -25,8 +28,8 @@ shared ``sensor_correction`` message at every run, so a publication triggered by
 baro compensation (``TC_A_ENABLE``, ``TC_B_ENABLE``, which gyronet's export leaves alone) also
 carries the gyro's newest offset; with them enabled the gyro's offset is at least this fresh.
 
-ArduPilot (``libraries/AP_InertialSensor/AP_InertialSensor_tempcal.cpp`` ``correct_sensor``, and
-``AP_InertialSensor_Backend.cpp`` ``_rotate_and_correct_gyro``): rate -= p(T) - p(T_cal), both
+ArduPilot (ArduPilot/ardupilot at b44478217f: ``libraries/AP_InertialSensor/AP_InertialSensor_tempcal.cpp``
+``correct_sensor``, and ``AP_InertialSensor_Backend.cpp`` ``_rotate_and_correct_gyro``): rate -= p(T) - p(T_cal), both
 temperatures clamped to [TMIN, TMAX], then the boot gyro calibration's offset (measured at T_cal
 with no correction applied) is removed. Against the bundle's curve b the user gets
 e(T) - e(T_cal), e = p - b: the constant cancels, and the bound over T and T_cal is max e - min e.
@@ -234,5 +237,6 @@ def minimax_cubic(delta_c: np.ndarray, target_dps: np.ndarray) -> np.ndarray:
     return coef / scale ** np.arange(4)[:, None]
 
 
-__all__ = ["DEFAULT_TEMP_RATE_C_PER_S", "PX4_CLASSES", "PX4_PERIOD_S", "PX4_START_TEMP_C", "PX4_THRESHOLD_C", "difference_error",
-           "history_error", "is_px4_cubic", "px4_stated_error", "minimax_cubic", "px4_as_run", "px4_firmware_output", "px4_published_index", "px4_schedule_error"]
+__all__ = ["DEFAULT_TEMP_RATE_C_PER_S", "PX4_CLASSES", "PX4_PERIOD_S", "PX4_START_TEMP_C", "PX4_THRESHOLD_C",
+           "difference_error", "history_error", "is_px4_cubic", "minimax_cubic", "px4_as_run", "px4_firmware_output",
+           "px4_published_index", "px4_schedule_error", "px4_stated_error"]
