@@ -10,8 +10,8 @@ from gyronet.baselines import TempPolynomial
 from gyronet.compensator import Compensated
 from gyronet.data import AXES, load_recording, load_truth
 from gyronet.dataset import DriftData, block_rmse
-from gyronet.deploy.as_flown import (difference_error, is_px4_cubic, minimax_cubic, px4_firmware_output,
-                                     px4_published_index, px4_schedule_error)
+from gyronet.deploy.as_flown import (difference_error, is_px4_cubic, minimax_cubic, px4_calibrated_error,
+                                     px4_firmware_output, px4_published_index, px4_schedule_error)
 from gyronet.deploy.params import ardupilot_cubic, bundle_curve, export_params, fit_cubic, px4_cubic, read_params
 from gyronet.errors import GyronetError
 from gyronet.pipeline import train_run
@@ -74,6 +74,20 @@ def test_the_held_offset_bound_is_what_a_slow_ramp_gives():
     np.testing.assert_allclose(as_run[:2], bound[:2], rtol=0.03)
     per_sample = np.abs(cubic(grid) - curve).max(0)
     assert np.all(bound >= per_sample) and bound[0] > 1.5 * per_sample[0]
+
+
+def test_the_held_bounds_by_brute_force_on_a_coarse_grid():
+    # 0.5 degC spacing, a step of 1 degC: T' is T or a neighbour or the next but one, clamped at the ends
+    grid = np.arange(0.0, 10.5, 0.5)
+    curve = np.column_stack([np.sin(grid / 2), 0.1 * grid, grid**2 / 50])
+    cubic = curve + np.column_stack([0.01 * np.cos(grid), 0 * grid, 0.02 * np.ones_like(grid)])
+    errors = np.array([[cubic[min(max(i + k, 0), len(grid) - 1)] - curve[i] for k in range(-2, 3)]
+                       for i in range(len(grid))])  # (T, T', axis)
+    np.testing.assert_allclose(px4_schedule_error(grid, cubic, curve, 1.0), np.abs(errors).max((0, 1)))
+    np.testing.assert_allclose(px4_calibrated_error(grid, cubic, curve, 1.0),
+                               errors.max((0, 1)) - errors.min((0, 1)))
+    # with no hold (a step of 0), the calibrated bound is the difference form's
+    np.testing.assert_allclose(px4_calibrated_error(grid, cubic, curve, 0.0), difference_error(cubic - curve)[0])
 
 
 def _knee_curve() -> tuple[np.ndarray, np.ndarray]:
@@ -149,6 +163,9 @@ def test_px4_sidecar_states_both_errors_and_the_history_as_the_firmware_runs(bun
     firmware = np.array([summary["px4_firmware"]["max_error_dps"][a] for a in AXES])
     assert summary["stated_error_dps"] == summary["px4_firmware"]["max_error_dps"]
     assert np.all(firmware >= per_sample) and np.all(firmware > per_sample + 1e-4)
+    # after PX4's gyro calibration: the difference form, with the offsets held
+    calibrated = np.array([summary["px4_firmware"]["after_gyro_calibration_max_error_dps"][a] for a in AXES])
+    assert np.all(calibrated >= np.array([summary["difference_max_error_dps"][a] for a in AXES]) - 1e-12)
     # on the cycle's temperatures: the .params read back, held as the firmware holds it
     recording = load_recording(cycle_csv)
     cubic = px4_cubic(read_params(tmp_path / "tc.params"))

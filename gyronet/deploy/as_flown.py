@@ -135,6 +135,17 @@ def px4_firmware_output(time_s: np.ndarray, temp_c: np.ndarray, out: Compensated
     return out._replace(rate_dps=out.rate_dps + out.drift_dps - held_dps, drift_dps=held_dps)
 
 
+def _held_error_range(grid_c: np.ndarray, cubic_dps: np.ndarray, curve_dps: np.ndarray,
+                      step_c: float) -> tuple[np.ndarray, np.ndarray]:
+    """Per temperature T of the grid, the highest and lowest cubic(T') - curve(T) with |T' - T| <= ``step_c``."""
+    spacing_c = float(grid_c[1] - grid_c[0])
+    size = 2 * int(np.ceil(step_c / spacing_c - 1e-9)) + 1
+    # mode="nearest": T' beyond the grid is its edge, as PX4 clamps to [TMIN, TMAX]
+    highest = maximum_filter1d(cubic_dps, size, axis=0, mode="nearest")
+    lowest = minimum_filter1d(cubic_dps, size, axis=0, mode="nearest")
+    return highest - curve_dps, lowest - curve_dps
+
+
 def px4_schedule_error(grid_c: np.ndarray, cubic_dps: np.ndarray, curve_dps: np.ndarray,
                        step_c: float) -> np.ndarray:
     """Largest |cubic(T') - curve(T)| over the grid with |T' - T| <= ``step_c``, per axis: the held offset's bound.
@@ -148,12 +159,22 @@ def px4_schedule_error(grid_c: np.ndarray, cubic_dps: np.ndarray, curve_dps: np.
     step_c
         How far the temperature can move from the last published one: 1 degC plus the rate times 1 s.
     """
-    spacing_c = float(grid_c[1] - grid_c[0])
-    half = int(np.ceil(step_c / spacing_c - 1e-9))
-    size = 2 * half + 1
-    highest = maximum_filter1d(cubic_dps, size, axis=0, mode="nearest")
-    lowest = minimum_filter1d(cubic_dps, size, axis=0, mode="nearest")
-    return np.maximum(np.abs(highest - curve_dps), np.abs(lowest - curve_dps)).max(0)
+    high, low = _held_error_range(grid_c, cubic_dps, curve_dps, step_c)
+    return np.maximum(np.abs(high), np.abs(low)).max(0)
+
+
+def px4_calibrated_error(grid_c: np.ndarray, cubic_dps: np.ndarray, curve_dps: np.ndarray,
+                         step_c: float) -> np.ndarray:
+    """The held offset's bound after a PX4 gyro calibration at T_cal: e(T) - e(T_cal), both held, per axis.
+
+    PX4's gyro calibrations average the rate with the thermal offset already subtracted
+    (``src/modules/commander/gyro_calibration.cpp`` lines 114-117; the online one, on by default,
+    ``IMU_GYRO_CAL_EN`` = 1, whenever the vehicle is disarmed and still:
+    ``src/modules/gyro_calibration/GyroCalibration.cpp`` line 152), so ``CAL_GYROn_OFF`` takes up
+    e(T_cal) and PX4 users get ArduPilot's difference form, with the held offsets.
+    """
+    high, low = _held_error_range(grid_c, cubic_dps, curve_dps, step_c)
+    return high.max(0) - low.min(0)
 
 
 def _axes(values: np.ndarray) -> dict[str, float]:
@@ -170,6 +191,7 @@ def px4_stated_error(grid_c: np.ndarray, cubic_dps: np.ndarray, curve_dps: np.nd
     return {"period_s": PX4_PERIOD_S, "threshold_c": PX4_THRESHOLD_C, "temp_rate_c_per_s": temp_rate_c_per_s,
             "temp_step_c": step_c,
             "max_error_dps": _axes(px4_schedule_error(grid_c, cubic_dps, curve_dps, step_c)),
+            "after_gyro_calibration_max_error_dps": _axes(px4_calibrated_error(grid_c, cubic_dps, curve_dps, step_c)),
             "source": "PX4 TemperatureCompensationModule.cpp (1 s schedule), TemperatureCompensation.cpp "
                       "update_offsets_gyro (published when |T - T_published| > 1 degC)"}
 
@@ -238,5 +260,5 @@ def minimax_cubic(delta_c: np.ndarray, target_dps: np.ndarray) -> np.ndarray:
 
 
 __all__ = ["DEFAULT_TEMP_RATE_C_PER_S", "PX4_CLASSES", "PX4_PERIOD_S", "PX4_START_TEMP_C", "PX4_THRESHOLD_C",
-           "difference_error", "history_error", "is_px4_cubic", "minimax_cubic", "px4_as_run", "px4_firmware_output",
-           "px4_published_index", "px4_schedule_error", "px4_stated_error"]
+           "difference_error", "history_error", "is_px4_cubic", "minimax_cubic", "px4_as_run", "px4_calibrated_error",
+           "px4_firmware_output", "px4_published_index", "px4_schedule_error", "px4_stated_error"]
