@@ -10,6 +10,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))  # scripts/_cli.py, als
 from _cli import command  # noqa: E402
 
 FORMATS = ("px4", "ardupilot", "c")
+FITS = (None, "px4", "difference")
 
 
 @command("export", "deploy", schemas={"instance": int, "device_id": int, "vehicle_id": int, "component_id": int,
@@ -18,6 +19,8 @@ FORMATS = ("px4", "ardupilot", "c")
 def main(cfg: DictConfig) -> None:
     if cfg.format not in FORMATS:
         raise ConfigError(f"format must be one of {', '.join(FORMATS)}, got {cfg.format!r}")
+    if cfg.get("fit") not in FITS:  # before the heavy imports, as gyronet.deploy.params.FORMS
+        raise ConfigError(f"fit must be one of px4, difference (or null: the stack's own), got {cfg.fit!r}")
     if cfg.format == "c":
         try:
             from gyronet.deploy.c_export import write_c
