@@ -13,6 +13,7 @@ from gyronet.campaign import BLOCK_S, cold_dwell, floor_dps, score, touched_bloc
 from gyronet.compensator import Compensator
 from gyronet.data import AXES, Recording, load_recording, load_truth, truth_path
 from gyronet.dataset import block_rmse
+from gyronet.deploy.as_flown import is_px4_cubic, px4_firmware_output
 from gyronet.errors import GyronetError
 from gyronet.offline import compensate_as_deployed
 from gyronet.runs import run_name
@@ -42,8 +43,12 @@ def held_out_paths(input_path: str | None = None, path: str | None = None,
 
 
 def table_rows(input_path: str | Path, bundles: Mapping[str, str | Path], startup: Mapping[str, Any] | None = None,
-               score_from_s: float = 0.0) -> dict[str, dict[str, Any]]:
+               score_from_s: float = 0.0, px4_firmware_schedule: bool = True) -> dict[str, dict[str, Any]]:
     """Raw and each bundle's compensated output on ``input_path``, from a fresh state: N, B and residual / floor.
+
+    ``px4_firmware_schedule``: a PX4 cubic bundle (poly3, px4, px4_onboard) is run as PX4's
+    firmware runs it, its offset recomputed once a second and published only when the
+    temperature moved more than 1 degC (``gyronet.deploy.as_flown``); False: per sample.
 
     The floor is the simulator's noise where it wrote the truth, else the recording's own (the
     Allan deviation at 60 s in its cold dwell, ``gyronet.campaign``: a real run). ``startup``:
@@ -76,17 +81,20 @@ def table_rows(input_path: str | Path, bundles: Mapping[str, str | Path], startu
         compensator = Compensator.load(bundle)
         compensator.use_startup(**startup)
         out = compensate_as_deployed(compensator, recording)
+        if px4_firmware_schedule and is_px4_cubic(compensator.meta):
+            out = px4_firmware_output(recording.time_s, recording.temp_c, out)
         rows[name] = row(out.rate_dps, out.drift_dps)
     return rows
 
 
 def table_runs(paths: Sequence[str], bundles: Mapping[str, str | Path], startup: Mapping[str, Any] | None = None,
-               score_from_s: float = 0.0) -> dict[str, dict[str, dict[str, Any]]]:
+               score_from_s: float = 0.0, px4_firmware_schedule: bool = True) -> dict[str, dict[str, dict[str, Any]]]:
     """``table_rows`` for each run of a campaign (each from a fresh state, as at its own power-up), by run name."""
     names = [run_name(p) for p in paths]
     if len(set(names)) != len(names):
         raise GyronetError(f"data.paths: two runs share a name ({', '.join(names)}); rename one")
-    return {name: table_rows(path, bundles, startup, score_from_s) for name, path in zip(names, paths)}
+    return {name: table_rows(path, bundles, startup, score_from_s, px4_firmware_schedule)
+            for name, path in zip(names, paths)}
 
 
 def mean_ratios(per_run: Mapping[str, Mapping[str, Mapping[str, Any]]]) -> dict[str, list[float]]:

@@ -10,13 +10,17 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))  # scripts/_cli.py, als
 from _cli import command  # noqa: E402
 
 FORMATS = ("px4", "ardupilot", "c")
+FITS = (None, "px4", "difference")
 
 
 @command("export", "deploy", schemas={"instance": int, "device_id": int, "vehicle_id": int, "component_id": int,
-                            "grid_points": int}, required=("model", "output"))
+                            "grid_points": int, "temp_rate_c_per_s": float, "history": str | None, "fit": str | None},
+         required=("model", "output"))
 def main(cfg: DictConfig) -> None:
     if cfg.format not in FORMATS:
         raise ConfigError(f"format must be one of {', '.join(FORMATS)}, got {cfg.format!r}")
+    if cfg.get("fit") not in FITS:  # before the heavy imports, as gyronet.deploy.params.FORMS
+        raise ConfigError(f"fit must be one of px4, difference (or null: the stack's own), got {cfg.fit!r}")
     if cfg.format == "c":
         try:
             from gyronet.deploy.c_export import write_c
@@ -30,12 +34,18 @@ def main(cfg: DictConfig) -> None:
     from gyronet.deploy.params import export_params
 
     summary = export_params(cfg.model, cfg.output, cfg.format, cfg.instance, cfg.device_id, cfg.vehicle_id,
-                            cfg.component_id, cfg.grid_points)
-    error = ", ".join(f"{axis}={summary['max_error_dps'][axis]:.3g}" for axis in "xyz")
-    print(f"{summary['params']}: {summary['n_params']} parameters; cubic over {summary['temp_min_c']:.3f} .. "
-          f"{summary['temp_max_c']:.3f} degC, largest error against the bundle's curve {error} deg/s "
-          f"(at dT/dt = 0; {Path(summary['params']).with_suffix('.json')})")
+                            cfg.component_id, cfg.grid_points, float(cfg.temp_rate_c_per_s), cfg.get("history"),
+                            cfg.get("fit"))
 
+    def axes(errors: dict) -> str:
+        return ", ".join(f"{axis}={errors[axis]:.3g}" for axis in "xyz")
+
+    users = ("as PX4's firmware runs it (1 Hz, 1 degC)" if cfg.format == "px4"
+             else "e(T) - e(T_cal) after ArduPilot's boot calibration")
+    print(f"{summary['params']}: {summary['n_params']} parameters; cubic over {summary['temp_min_c']:.3f} .. "
+          f"{summary['temp_max_c']:.3f} degC, largest error against the bundle's curve {axes(summary['max_error_dps'])} "
+          f"deg/s per sample, {axes(summary['stated_error_dps'])} deg/s {users} "
+          f"(at dT/dt = 0; {Path(summary['params']).with_suffix('.json')})")
 
 if __name__ == "__main__":
     main()

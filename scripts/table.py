@@ -14,11 +14,12 @@ from _cli import command  # noqa: E402
 log = logging.getLogger(__name__)
 
 
-@command("table", "deploy")
+@command("table", "deploy", schemas={"px4.firmware_schedule": bool})
 def main(cfg: DictConfig) -> None:
     paths = held_out_paths(cfg.get("input"), cfg.data.get("path"), cfg.data.get("paths"))
     bundles = OmegaConf.to_container(cfg.bundles)
-    options = {"startup": OmegaConf.to_container(cfg.startup, resolve=True), "score_from_s": float(cfg.score_from_s)}
+    options = {"startup": OmegaConf.to_container(cfg.startup, resolve=True), "score_from_s": float(cfg.score_from_s),
+               "px4_firmware_schedule": bool(cfg.px4.firmware_schedule)}
     if len(paths) == 1:
         rows = table_rows(paths[0], bundles, **options)
         markdown, figures = to_markdown(rows), {"input": paths[0], "rows": rows}

@@ -10,10 +10,12 @@ Both stacks correct a gyro with one cubic in temperature per axis, the temperatu
   p(clamp(T_cal) - 35), p(u) = (GYR1 u + GYR2 u^2 + GYR3 u^3) * 1e-6, rad/s; the reference is fixed
   at 35 degC, and the constant is the gyro offset ArduPilot calibrates at boot (at T_cal).
 
-The cubic is read off the bundle's own curve: its model evaluated on a fine grid of temperatures
-at steady state (dT/dt = 0) and fitted by least squares. For a cubic bundle (poly3, px4,
-px4_onboard) that is the model itself (error at rounding level); for gyronet's own model it is the
-best cubic over the trained range, and the error is stated. The clamp edges are where the curve
+The cubic is read off the bundle's own curve (``gyronet.deploy.bundle_curve``): its model
+evaluated on a fine grid of temperatures at steady state (dT/dt = 0), and fitted for the stack
+that runs it: by least squares for PX4, which applies the cubic itself; as the minimax cubic for
+ArduPilot, whose users get e(T) - e(T_cal) (``gyronet.deploy.as_flown``). For a cubic bundle
+(poly3, px4, px4_onboard) that is the model itself (error at rounding level); for gyronet's own
+model it is an approximation, and the error each stack's users get is stated. The clamp edges are where the curve
 stops changing, found by bisection, so a bundle clamped inside its data keeps its own TMIN, TMAX.
 The file is QGroundControl's: ``#`` comment lines, then ``vehicle-id component-id name value
 type`` separated by tabs, the type a MAVLink ``MAV_PARAM_TYPE`` (6 INT32, 2 INT8, 9 REAL32).
@@ -22,14 +24,16 @@ from __future__ import annotations
 
 import json
 import logging
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
-import torch
 
-from gyronet.errors import BundleError, GyronetError
+from gyronet.deploy.bundle_curve import bundle_curve, clamp_range, steady_features  # noqa: F401 (re-exported)
+from gyronet.deploy.as_flown import (DEFAULT_TEMP_RATE_C_PER_S, difference_error, history_error, minimax_cubic,
+                                     px4_stated_error)
+from gyronet.errors import GyronetError
 
 log = logging.getLogger(__name__)
 
@@ -38,7 +42,6 @@ RAD_PER_DEG = np.pi / 180.0
 ARDUPILOT_TREF_C = 35.0  # AP_InertialSensor_tempcal.cpp TEMP_REFERENCE
 ARDUPILOT_SCALE = 1.0e6  # ... SCALE_FACTOR
 AXES = ("x", "y", "z")
-_STEADY = {"temp", "rate", "product", "lag", "power"}  # kinds with a value at steady temperature
 
 
 @dataclass
@@ -63,112 +66,60 @@ class Cubic:
         return Cubic(self.temp_min_c, self.temp_max_c, temp_ref_c, (binomial * powers).T @ self.coef_dps)
 
 
-def steady_features(meta: dict[str, Any], temp_c: np.ndarray) -> np.ndarray:
-    """The bundle's features at a steady temperature ``temp_c`` (n,): dT/dt = 0, every lag settled."""
-    rows = np.zeros((len(temp_c), len(meta["features"])))
-    for i, spec in enumerate(meta["features"]):
-        kind, source = spec["kind"], spec.get("source", "temp_c")
-        if kind not in _STEADY or source != "temp_c":
-            continue  # checked by the caller: the model must not read it
-        if kind in ("temp", "lag"):
-            rows[:, i] = temp_c
-        elif kind == "power":
-            rows[:, i] = (temp_c - float(spec.get("centre", 0.0))) ** float(spec["exponent"])
-    return rows
-
-
-def _inexpressible(model: Callable, meta: dict[str, Any], temp_c: np.ndarray) -> list[str]:
-    """Names of the features the model reads that no temperature polynomial can stand for."""
-    base = steady_features(meta, temp_c)
-    found = []
-    for i, spec in enumerate(meta["features"]):
-        if spec["kind"] in _STEADY and spec.get("source", "temp_c") == "temp_c":
-            continue
-        bumped = base.copy()
-        bumped[:, i] += 1.0
-        if not np.array_equal(model(base), model(bumped)):
-            found.append(meta["feature_names"][i])
-    return found
-
-
-def _clamp_edge(curve: Callable[[float], np.ndarray], flat_c: float, inside_c: float) -> float:
-    """Bisect for the temperature where the curve starts to change, between a flat point and an inside one."""
-    flat_value = curve(flat_c)
-    for _ in range(80):
-        middle = 0.5 * (flat_c + inside_c)
-        if np.array_equal(curve(middle), flat_value):
-            flat_c = middle
-        else:
-            inside_c = middle
-    return flat_c
-
-
-def clamp_range(curve: Callable[[float], np.ndarray], low_c: float, high_c: float) -> tuple[float, float]:
-    """Where the curve is clamped: its flat ends beyond [low_c, high_c] traced inwards; else low_c, high_c."""
-    span = high_c - low_c
-    edges = []
-    for far, near, inside in ((low_c - span, low_c - span + 1.0, high_c), (high_c + span, high_c + span - 1.0, low_c)):
-        if np.array_equal(curve(far), curve(near)) and not np.array_equal(curve(far), curve(inside)):
-            edges.append(_clamp_edge(curve, far, inside))
-        else:
-            edges.append(low_c if far < low_c else high_c)
-    return edges[0], edges[1]
-
-
 @dataclass
 class CubicFit:
-    """The cubic written out, and how far it is from the bundle's curve on the grid (deg/s per axis)."""
+    """The cubic written out, and how far it is from the bundle's curve on the grid (deg/s per axis).
+
+    ``form``: what the cubic was fitted for, ``"px4"`` (least squares of e(T) = cubic - curve, PX4
+    applies the cubic as it is) or ``"difference"`` (ArduPilot's e(T) - e(T_cal): the minimax cubic).
+    """
 
     cubic: Cubic
     max_error_dps: np.ndarray
     rms_error_dps: np.ndarray
     model_class: str
     grid_points: int
+    form: str = "px4"
+    grid_c: np.ndarray | None = field(default=None, repr=False)
+    curve_dps: np.ndarray | None = field(default=None, repr=False)
 
     def summary(self) -> dict[str, Any]:
-        return {"model_class": self.model_class, "temp_min_c": self.cubic.temp_min_c,
-                "temp_max_c": self.cubic.temp_max_c, "temp_ref_c": self.cubic.temp_ref_c,
-                "coef_dps": self.cubic.coef_dps.tolist(),
-                "max_error_dps": dict(zip(AXES, self.max_error_dps.tolist())),
-                "rms_error_dps": dict(zip(AXES, self.rms_error_dps.tolist())),
-                "grid": f"{self.grid_points} temperatures over [TMIN, TMAX] at dT/dt = 0"}
+        grid = f"{self.grid_points} temperatures over [TMIN, TMAX] at dT/dt = 0"
+        found = {"model_class": self.model_class, "temp_min_c": self.cubic.temp_min_c,
+                 "temp_max_c": self.cubic.temp_max_c, "temp_ref_c": self.cubic.temp_ref_c,
+                 "coef_dps": self.cubic.coef_dps.tolist(),
+                 "max_error_dps": dict(zip(AXES, self.max_error_dps.tolist())),
+                 "rms_error_dps": dict(zip(AXES, self.rms_error_dps.tolist())), "grid": grid, "fit_form": self.form}
+        if self.grid_c is not None:
+            bound, rms = difference_error(self.cubic(self.grid_c) - self.curve_dps)
+            found["difference_max_error_dps"] = dict(zip(AXES, bound.tolist()))
+            found["difference_rms_error_dps"] = dict(zip(AXES, rms.tolist()))
+        return found
 
 
-def bundle_cubic(bundle_dir: str | Path, grid_points: int = 2001) -> CubicFit:
-    """The least-squares cubic of a bundle's steady-state curve over its clamp range (or trained range)."""
-    from gyronet.export import read_bundle
+FORMS = ("px4", "difference")
 
-    bundle = read_bundle(bundle_dir)
-    if bundle.kalman is not None:
-        raise BundleError(f"{bundle_dir}: has a Kalman stage, which a temperature polynomial cannot express; "
-                          "export format=c, or train without kalman=")
-    meta = bundle.meta
 
-    def model(features: np.ndarray) -> np.ndarray:
-        with torch.no_grad():
-            return bundle.model(torch.as_tensor(features, dtype=torch.float64)).numpy()
+def fit_cubic(grid_c: np.ndarray, curve_dps: np.ndarray, form: str = "px4", model_class: str = "?") -> CubicFit:
+    """The cubic about mid-range fitted to the curve on the grid: least squares (``px4``) or minimax (``difference``)."""
+    if form not in FORMS:
+        raise GyronetError(f"the cubic is fitted in PX4's form or ArduPilot's difference form ({', '.join(FORMS)}), "
+                           f"not {form!r}")
+    temp_ref = 0.5 * (grid_c[0] + grid_c[-1])
+    if form == "px4":
+        coef = np.linalg.lstsq(np.vander(grid_c - temp_ref, 4, increasing=True), curve_dps, rcond=None)[0]
+    else:  # ArduPilot's bound max e - min e is least for the minimax cubic (as_flown.minimax_cubic)
+        coef = minimax_cubic(grid_c - temp_ref, curve_dps)
+    cubic = Cubic(float(grid_c[0]), float(grid_c[-1]), temp_ref, coef)
+    error = cubic(grid_c) - curve_dps
+    return CubicFit(cubic, np.abs(error).max(0), np.sqrt(np.mean(error**2, 0)), model_class, len(grid_c), form,
+                    grid_c, curve_dps)
 
-    low_c, high_c = (float(v) for v in meta["temp_range_c"])
-    probe = np.linspace(low_c, high_c, 7)
-    extra = _inexpressible(model, meta, probe)
-    if extra:
-        raise BundleError(f"{bundle_dir}: the model reads {', '.join(extra)}, which a temperature polynomial cannot "
-                          "express (an auxiliary input or a time term); export format=c instead")
 
-    def curve(temp_c: float) -> np.ndarray:
-        return model(steady_features(meta, np.array([temp_c])))
-
-    temp_min, temp_max = clamp_range(curve, low_c, high_c)
-    grid = np.linspace(temp_min, temp_max, grid_points)
-    target = model(steady_features(meta, grid))
-    if not np.all(np.isfinite(target)):
-        raise BundleError(f"{bundle_dir}: the model gives non-finite drift inside its trained range")
-    temp_ref = 0.5 * (temp_min + temp_max)
-    coef = np.linalg.lstsq(np.vander(grid - temp_ref, 4, increasing=True), target, rcond=None)[0]
-    cubic = Cubic(temp_min, temp_max, temp_ref, coef)
-    error = cubic(grid) - target
-    return CubicFit(cubic, np.abs(error).max(0), np.sqrt(np.mean(error**2, 0)),
-                    str(meta.get("model", {}).get("class", "?")), grid_points)
+def bundle_cubic(bundle_dir: str | Path, grid_points: int = 2001, form: str = "px4") -> CubicFit:
+    """The cubic of a bundle's steady-state curve over its clamp range (or trained range), fitted for ``form``."""
+    grid, target, _, model_class = bundle_curve(bundle_dir, grid_points)
+    return fit_cubic(grid, target, form, model_class)
 
 
 def _f32(value: float) -> float:
@@ -255,8 +206,18 @@ def ardupilot_cubic(values: dict[str, float], instance: int = 0) -> Cubic:
 
 
 def export_params(bundle_dir: str | Path, output: str | Path, stack: str = "px4", instance: int = 0,
-                  device_id: int = 0, vehicle_id: int = 1, component_id: int = 1, grid_points: int = 2001) -> dict:
-    """Write ``output`` (.params) and ``output`` with suffix .json (the cubic and its error); return the summary."""
+                  device_id: int = 0, vehicle_id: int = 1, component_id: int = 1, grid_points: int = 2001,
+                  temp_rate_c_per_s: float = DEFAULT_TEMP_RATE_C_PER_S, history: str | Path | None = None,
+                  fit: str | None = None) -> dict:
+    """Write ``output`` (.params) and ``output`` with suffix .json (the cubic and its error); return the summary.
+
+    PX4 gets the least-squares cubic, ArduPilot the minimax one (its users see e(T) - e(T_cal));
+    ``fit`` (``FORMS``) overrides that: ``px4`` for ArduPilot is the least RMS of e(T) - e(T_cal)
+    over all pairs (2 var(e)), the minimax its least bound. The
+    summary's ``stated_error_dps`` is the bound the stack's users get: PX4's as its firmware runs
+    (1 Hz, 1 degC, at ``temp_rate_c_per_s``), ArduPilot's over T and T_cal. ``history``: a
+    recording whose temperature history the errors are also measured on (``history_error``).
+    """
     from gyronet.atomic import atomic_output
 
     if stack not in ("px4", "ardupilot"):
@@ -266,24 +227,44 @@ def export_params(bundle_dir: str | Path, output: str | Path, stack: str = "px4"
                            "name the parameter file F.params")
     if grid_points < 8:
         raise GyronetError(f"grid_points must be at least 8 to fit and check a cubic, got {grid_points}")
-    fit = bundle_cubic(bundle_dir, grid_points)
+    if fit is not None and fit not in FORMS:
+        raise GyronetError(f"fit must be one of {', '.join(FORMS)} (or null: the stack's own), got {fit!r}")
+    grid, target, curve, model_class = bundle_curve(bundle_dir, grid_points)
+    fit = fit_cubic(grid, target, fit or ("px4" if stack == "px4" else "difference"), model_class)
+    summary = {"format": stack, "bundle": str(bundle_dir), "params": str(output), **fit.summary()}
     if stack == "px4":
         rows, name = px4_rows(fit.cubic, instance, device_id), "PX4 Pro"
         if not device_id:
             log.warning("TC_G%d_ID is 0: PX4 applies TC_G%d_* only to the gyro whose device id it names; give "
                         "device_id=<CAL_GYRO%d_ID of the calibrated board>", instance, instance, instance)
+        summary["px4_firmware"] = px4_stated_error(grid, fit.cubic(grid), target, temp_rate_c_per_s)
+        summary["stated_error_dps"] = summary["px4_firmware"]["max_error_dps"]
+        summary["stated_error"] = ("largest |offset PX4 applies - bundle's curve|, the offset held from each "
+                                   f"publication (|T - T_published| <= {summary['px4_firmware']['temp_step_c']:g} degC)")
     else:
         rows, name = ardupilot_rows(fit.cubic, instance), "ArduPilot"
+        other = fit_cubic(grid, target, "px4" if fit.form == "difference" else "difference").summary()
+        # what the other fit would give ArduPilot's users, for comparison
+        summary["other_fit"] = {k: other[k] for k in ("fit_form", "difference_max_error_dps", "difference_rms_error_dps")}
+        summary["stated_error_dps"] = summary["difference_max_error_dps"]
+        summary["stated_error"] = ("largest |e(T) - e(T_cal)| over T and the boot-calibration temperature T_cal in "
+                                   "[TMIN, TMAX], e = cubic - bundle's curve (ArduPilot removes the constant at boot)")
+    if history is not None:
+        from gyronet.data import load_recording
+
+        recording = load_recording(history)
+        summary["history"] = {"recording": str(history), **history_error(
+            recording.time_s, recording.temp_c, fit.cubic, curve(recording.temp_c), stack)}
+    summary["n_params"] = len(rows)
     output = Path(output)
     output.parent.mkdir(parents=True, exist_ok=True)
     with atomic_output(output) as tmp:
         tmp.write_text(params_text(rows, name, vehicle_id, component_id, source=str(bundle_dir)))
-    summary = {"format": stack, "bundle": str(bundle_dir), "params": str(output), "n_params": len(rows),
-               **fit.summary()}
     with atomic_output(output.with_suffix(".json")) as tmp:
         tmp.write_text(json.dumps(summary, indent=2) + "\n")
     return summary
 
 
-__all__ = ["Cubic", "CubicFit", "ardupilot_cubic", "ardupilot_rows", "bundle_cubic", "clamp_range", "export_params",
-           "params_text", "px4_cubic", "px4_rows", "read_params", "steady_features"]
+__all__ = ["Cubic", "CubicFit", "FORMS", "ardupilot_cubic", "ardupilot_rows", "bundle_cubic", "bundle_curve",
+           "clamp_range", "export_params", "fit_cubic", "params_text", "px4_cubic", "px4_rows", "read_params",
+           "steady_features"]
