@@ -14,7 +14,8 @@ from gyronet.data import GYRO_COLUMNS, load_recording
 from gyronet.stream import CsvLineParser, FaultPlan, plan_stream
 from gyronet.stream.csv_run import LineRun
 from gyronet.stream.lpbus_run import FrameRun
-from test_live_chunks import OUT_OF_RANGE_TEMP_C, assert_same_rows, flood, offline_by_segment, reads_of, run  # noqa: F401
+from test_live_chunks import (OUT_OF_RANGE_TEMP_C, assert_same_rows, flood, offline_by_segment,  # noqa: F401
+                              reads_of, run)
 
 SUMMARY_KEYS = ("stopped", "n_samples", "faults", "n_faults", "n_out_of_range", "clock_restarts", "allan_bins")
 

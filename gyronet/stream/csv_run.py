@@ -57,14 +57,16 @@ class LineRun:
         raw = bytes(buffer[position:end])
         codes = np.frombuffer(raw, dtype=np.uint8)
         line_ends = np.flatnonzero(codes == 10)  # each line's b"\n" in raw
-        lengths = np.diff(line_ends, prepend=-1) - 1  # as the per-line path counts them: b"\r" in, b"\n" not
+        lengths = np.empty_like(line_ends)  # as the per-line path counts them: b"\r" in, b"\n" not
+        lengths[0], lengths[1:] = line_ends[0], line_ends[1:] - line_ends[:-1] - 1
         text, text_ends = raw, line_ends
         if b"\r" in raw:  # lines that end in b"\r\n" (as Arduino's println sends them) lose the b"\r"
             text = raw.replace(b"\r\n", b"\n")
             text_ends = line_ends - np.cumsum(codes[np.maximum(line_ends - 1, 0)] == 13)
-        if (not text.translate(None, _LINE_BYTES) and text.translate(None, _NUMBER_BYTES) == self._shape * len(line_ends)
+        n_lines = len(line_ends)
+        if (not text.translate(None, _LINE_BYTES) and text.translate(None, _NUMBER_BYTES) == self._shape * n_lines
                 and lengths.max() <= self.max_line_bytes):
-            n_good = len(line_ends)  # the usual case: every line of the right shape
+            n_good = n_lines  # the usual case: every line of the right shape
         else:
             good = self._shapes_ok(text, lengths)
             n_good = leading(good)
@@ -96,7 +98,7 @@ class LineRun:
         row a column, and how many lines they are: up to the first with a cell ``float`` refuses."""
         cells = lines.replace(b"\n", b",").split(b",")
         try:
-            values = np.array(list(map(float, cells)))
+            values = np.fromiter(map(float, cells), dtype=np.float64, count=len(cells))
         except ValueError:  # a cell that is not a number: the lines before the first one
             parsed = []
             for cell in cells:

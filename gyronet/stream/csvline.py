@@ -11,6 +11,10 @@ a damaged line that fits it) cannot turn every later sample into a fault.
 Numbers are read as the offline loader (pandas) reads them: ASCII decimal with an optional sign,
 point and exponent. Python's ``float`` also takes ``1_000``, ``١`` and friends; those are
 ``non_numeric`` here, as offline. ``nan`` and ``inf`` spellings are ``nan`` faults.
+
+With ``blocks=True`` (the live loop), a run of complete good lines comes out as one ``SampleBlock``
+read at once (:mod:`.csv_run`); any line that is not plainly good goes the per-line way below, so
+the samples, faults and their order are the same.
 """
 from __future__ import annotations
 
