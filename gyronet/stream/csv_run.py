@@ -14,6 +14,8 @@ segment), so faults and their order are the per-line path's.
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from gyronet.stream.events import SampleBlock, SampleCheck, leading
@@ -22,13 +24,28 @@ from gyronet.stream.events import SampleBlock, SampleCheck, leading
 # fixed cost is more than the per-line parse saves
 MIN_RUN_LINES = 16
 _NUMBER_BYTES = b"0123456789.eE+-"
-_LINE_BYTES = _NUMBER_BYTES + b",\n"
-_ALLOWED = np.zeros(256, dtype=bool)
-_ALLOWED[list(_LINE_BYTES)] = True
+
+
+@dataclass
+class _Lines:
+    """The complete lines of a buffer from ``base`` on, looked at once: where they are and which have a good shape."""
+
+    base: int  # where in the buffer the first line starts
+    starts: np.ndarray  # each line's first byte, in the buffer
+    ends: np.ndarray  # each line's b"\n", in the buffer
+    text: bytes  # the lines, b"\r\n" ends as b"\n"
+    text_starts: np.ndarray  # each line's first byte in ``text``
+    text_ends: np.ndarray  # each line's b"\n" in ``text``
+    run: np.ndarray  # good lines in a row from each line on (0: the line's shape is not good)
+    long_runs: np.ndarray  # the lines where at least MIN_RUN_LINES good lines start
 
 
 class LineRun:
     """The block reading of sample lines of one header (built once per header).
+
+    The lines of a buffer are looked at once, from the first ``decode`` after ``forget``; later calls
+    (after the per-line parser took a bad line) start from there. The owner calls ``forget`` whenever
+    the buffer changes.
 
     Parameters
     ----------
@@ -44,54 +61,87 @@ class LineRun:
         self.time_index = header.index("time_s")
         self.max_line_bytes = max_line_bytes
         self._shape = b"," * (self.n_cells - 1) + b"\n"  # what is left of a good line without its numbers
+        self._lines: _Lines | None = None
+
+    def forget(self) -> None:
+        """The buffer changed: look at its lines again at the next ``decode``."""
+        self._lines = None
 
     def decode(self, buffer: bytearray, position: int, check: SampleCheck) -> tuple[SampleBlock | None, int, int]:
-        """The good lines from ``position`` on, up to the first that is not: a block (or None), its bytes,
-        and, when None, where to try again (the lines before that go one by one).
+        """The good lines from ``position`` (a line's start) on, up to the first that is not: a block (or None),
+        its bytes, and, when None, where to try again (the lines before that go one by one).
 
         ``check.last_time_s`` moves to the last good line's time, as ``SampleCheck.check`` does.
         """
-        end = buffer.rfind(b"\n", position) + 1
-        if end == 0 or buffer.count(b"\n", position, end) < MIN_RUN_LINES:
-            return None, 0, max(end, position)
-        raw = bytes(buffer[position:end])
-        codes = np.frombuffer(raw, dtype=np.uint8)
-        line_ends = np.flatnonzero(codes == 10)  # each line's b"\n" in raw
-        lengths = np.empty_like(line_ends)  # as the per-line path counts them: b"\r" in, b"\n" not
-        lengths[0], lengths[1:] = line_ends[0], line_ends[1:] - line_ends[:-1] - 1
-        text, text_ends = raw, line_ends
-        if b"\r" in raw:  # lines that end in b"\r\n" (as Arduino's println sends them) lose the b"\r"
-            text = raw.replace(b"\r\n", b"\n")
-            text_ends = line_ends - np.cumsum(codes[np.maximum(line_ends - 1, 0)] == 13)
-        n_lines = len(line_ends)
-        if (not text.translate(None, _LINE_BYTES) and text.translate(None, _NUMBER_BYTES) == self._shape * n_lines
-                and lengths.max() <= self.max_line_bytes):
-            n_good = n_lines  # the usual case: every line of the right shape
-        else:
-            good = self._shapes_ok(text, lengths)
-            n_good = leading(good)
-            if n_good < MIN_RUN_LINES:  # too short a run to be worth it: line by line up to the next long one
-                return None, 0, position + _next_run(good, line_ends, n_good)
-        values, n_good = self._values(text[:int(text_ends[n_good - 1])], n_good)
-        n_good = min(n_good, leading(np.isfinite(values).all(axis=0)))
+        lines = self._lines
+        first = -1
+        if lines is not None and lines.base <= position <= lines.ends[-1]:
+            first = int(np.searchsorted(lines.starts, position))
+            first = first if first < len(lines.starts) and lines.starts[first] == position else -1
+        if first < 0:
+            end = buffer.rfind(b"\n", position) + 1
+            if end == 0 or buffer.count(b"\n", position, end) < MIN_RUN_LINES:
+                return None, 0, max(end, position)
+            lines, first = self._look(bytes(buffer[position:end]), position), 0
+            self._lines = lines
+        n_good = int(lines.run[first])
+        if n_good < MIN_RUN_LINES:  # too short a run to be worth it: line by line up to the next long one
+            later = np.searchsorted(lines.long_runs, first + 1)
+            retry = lines.starts[lines.long_runs[later]] if later < len(lines.long_runs) else lines.ends[-1] + 1
+            return None, 0, int(retry)
+        last = first + n_good - 1
+        values, n_good = self._values(lines.text[lines.text_starts[first]:lines.text_ends[last]], n_good)
+        if not np.isfinite(values).all():  # (one test in the usual case)
+            n_good = min(n_good, leading(np.isfinite(values).all(axis=0)))
         if n_good:
             n_good = min(n_good, leading(check.times_ok(values[self.time_index, :n_good])))
         if n_good == 0:
-            return None, 0, position + int(line_ends[0]) + 1
+            return None, 0, int(lines.ends[first]) + 1
         values = values[:, :n_good]
         columns = {"time_s": values[self.time_index],
                    **{name: values[i] for i, name in enumerate(self.header) if i != self.time_index}}
         check.last_time_s = float(values[self.time_index, -1])
-        return SampleBlock(columns), int(line_ends[n_good - 1]) + 1, 0
+        return SampleBlock(columns), int(lines.ends[first + n_good - 1]) + 1 - position, 0
 
-    def _shapes_ok(self, text: bytes, lengths: np.ndarray) -> np.ndarray:
-        """Per line: only number bytes, the header's number of cells, not too long."""
-        codes = np.frombuffer(text, dtype=np.uint8)
+    def _look(self, raw: bytes, base: int) -> _Lines:
+        """The complete lines ``raw`` (from ``base`` in the buffer): where they are, which have a good shape."""
+        codes = np.frombuffer(raw, dtype=np.uint8)
+        ends = np.flatnonzero(codes == 10)  # each line's b"\n" in raw
+        lengths = np.empty_like(ends)  # as the per-line path counts them: b"\r" in, b"\n" not
+        lengths[0], lengths[1:] = ends[0], ends[1:] - ends[:-1] - 1
+        text, text_ends = raw, ends
+        if b"\r" in raw:  # lines that end in b"\r\n" (as Arduino's println sends them) lose the b"\r"
+            text = raw.replace(b"\r\n", b"\n")
+            text_ends = ends - np.cumsum(codes[np.maximum(ends - 1, 0)] == 13)
+        n_lines = len(ends)
+        rest = text.translate(None, _NUMBER_BYTES)  # the commas, line ends and any byte not of a number
+        if rest == self._shape * n_lines and lengths.max() <= self.max_line_bytes:
+            good = np.ones(n_lines, dtype=bool)  # the usual case: every line of the right shape
+        else:
+            good = self._shapes_ok(rest, lengths)
+        # good lines in a row from each line on: up to the next line that is not good
+        bad = np.append(np.flatnonzero(~good), n_lines)
+        run = bad[np.searchsorted(bad, np.arange(n_lines))] - np.arange(n_lines)
+        starts = np.empty_like(ends)
+        starts[0], starts[1:] = 0, ends[:-1] + 1
+        text_starts = np.empty_like(text_ends)
+        text_starts[0], text_starts[1:] = 0, text_ends[:-1] + 1
+        return _Lines(base, starts + base, ends + base, text, text_starts, text_ends, run,
+                      np.flatnonzero(run >= MIN_RUN_LINES))
+
+    def _shapes_ok(self, rest: bytes, lengths: np.ndarray) -> np.ndarray:
+        """Per line: only number bytes, the header's number of cells, not too long (``rest``: the lines without
+        their number bytes)."""
+        codes = np.frombuffer(rest, dtype=np.uint8)
         line_ends = np.flatnonzero(codes == 10)
-        n_lines = len(line_ends)
-        bad = np.bincount(np.searchsorted(line_ends, np.flatnonzero(~_ALLOWED[codes])), minlength=n_lines)
-        commas = np.bincount(np.searchsorted(line_ends, np.flatnonzero(codes == 44)), minlength=n_lines)
-        return (bad[:n_lines] == 0) & (commas[:n_lines] == self.n_cells - 1) & (lengths <= self.max_line_bytes)
+        # commas counted up to each line end, then line by line; the other bytes are the rest of the line
+        commas = np.cumsum(codes == 44)[line_ends]
+        commas[1:] -= commas[:-1].copy()
+        widths = line_ends.copy()
+        widths[1:] -= line_ends[:-1]
+        widths[0] += 1
+        others = widths - commas - 1  # less the line's own b"\n"
+        return (others == 0) & (commas == self.n_cells - 1) & (lengths <= self.max_line_bytes)
 
     def _values(self, lines: bytes, n_lines: int) -> tuple[np.ndarray, int]:
         """The cells of ``n_lines`` lines (each of the right shape; the last without its b"\\n") as float64, one
@@ -109,17 +159,3 @@ class LineRun:
             n_lines = len(parsed) // self.n_cells
             values = np.array(parsed[:n_lines * self.n_cells])
         return values.reshape(n_lines, self.n_cells).T.copy(), n_lines
-
-
-def _next_run(good: np.ndarray, line_ends: np.ndarray, start: int) -> int:
-    """Bytes (from the first line) up to the first of ``MIN_RUN_LINES`` good lines in a row after line ``start``,
-    else to the end of the last line."""
-    n = len(good)
-    if n - start - 1 >= MIN_RUN_LINES:
-        # runs[i]: good lines in a row from line i on
-        window = np.convolve(good[start + 1:].astype(np.int32), np.ones(MIN_RUN_LINES, dtype=np.int32), "valid")
-        found = np.flatnonzero(window == MIN_RUN_LINES)
-        if len(found):
-            first = start + 1 + int(found[0])
-            return int(line_ends[first - 1]) + 1
-    return int(line_ends[-1]) + 1

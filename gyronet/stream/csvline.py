@@ -103,6 +103,8 @@ class CsvLineParser:
         buffer += data
         out: list[Sample | SampleBlock | Fault] = []
         position = retry = 0  # retry: where the block path is tried again (the lines before go one by one)
+        if self._run is not None:
+            self._run.forget()  # the buffer changed
         while True:
             if self.blocks and position >= retry and self._current is not None and not self._discarding:
                 block, step, retry = self._line_run().decode(buffer, position, self.check)
