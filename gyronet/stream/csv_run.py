@@ -2,15 +2,16 @@
 
 In a flood a read holds hundreds of lines, and reading them one by one (decode, strip, split, a
 dict, a ``SampleCheck`` call and a ``Sample`` each) was most of the stream's CPU. Here the
-complete lines in the buffer are checked together: only the bytes of plain numbers (digits,
-``.eE+-``), commas and line ends (``\n`` or ``\r\n``), the header's number of cells a line
-(compared with one bytes comparison of the commas and line ends), at most ``max_line_bytes``
-bytes a line. Their cells are read by ``float`` in one pass (the per-line path's own reading of
-such a line, so every value is the same to the bit; ``float`` refuses what is not a number:
-``1.2.3``, an empty cell, a lone sign). The leading lines that pass become one ``SampleBlock``
-once their values are finite and their times pass the check (increasing, no clock restart); the
-first line that fails anything goes to the per-line parser, which makes its fault (or its new
-segment), so faults and their order are the per-line path's.
+complete lines in the buffer are looked at together, once a read: only the bytes of plain numbers
+(digits, ``.eE+-``), commas and line ends (``\\n`` or ``\\r\\n``), the header's number of cells a
+line (what is left without the number bytes, compared in one go), at most ``max_line_bytes``
+bytes a line. A run of at least ``MIN_RUN_LINES`` such lines has its cells read by ``float`` in
+one pass (the per-line path's own reading of such a line, so every value is the same to the bit;
+``float`` refuses what is not a number: ``1.2.3``, an empty cell, a lone sign), and the leading
+lines whose values are finite and whose times pass the check (increasing, no clock restart)
+become one ``SampleBlock``. The first line that fails anything goes to the per-line parser, which
+makes its fault (or its new segment, or the header it changes), so faults and their order are
+the per-line path's; a shorter run goes line by line too.
 """
 from __future__ import annotations
 
