@@ -59,9 +59,10 @@ def run(monkeypatch, bundle, tmp_path, reads: list[bytes], per_sample: bool, nam
     return summary, pd.read_csv(path, comment="#")
 
 
-def offline_by_segment(bundle, reads: list[bytes], **startup) -> tuple[np.ndarray, np.ndarray]:
-    """The good samples' times and ``compensate_recording`` of each segment from a fresh state."""
-    parser, samples = LpBusParser(), []
+def offline_by_segment(bundle, reads: list[bytes], parser=None, **startup) -> tuple[np.ndarray, np.ndarray]:
+    """The good samples' times and ``compensate_recording`` of each segment from a fresh state (``parser``: the
+    per-frame parser of the reads' framing, default LP-BUS)."""
+    parser, samples = parser or LpBusParser(), []
     for data in reads:
         samples += [item for item in parser.feed(data) if isinstance(item, Sample)]
     starts = [i for i, s in enumerate(samples) if i == 0 or s.new_segment] + [len(samples)]

@@ -11,8 +11,8 @@ compensator keeps its state across calls, so the numbers equal ``compensate.py``
 samples however they were chunked. A chunk is split where the sensor clock restarted (the filters
 restart there) and where the start-up window ends (so that motion in the window stops the run
 after the window's rows are written, as when each sample went on its own). A flood's frames come
-as blocks of columns (``SampleBlock``, the LP-BUS parser's fast path), which go to the compensator
-without a ``Sample`` object each.
+as blocks of columns (``SampleBlock``, the LP-BUS and CSV parsers' fast paths), which go to the
+compensator without a ``Sample`` object each.
 """
 from __future__ import annotations
 

@@ -11,6 +11,10 @@ a damaged line that fits it) cannot turn every later sample into a fault.
 Numbers are read as the offline loader (pandas) reads them: ASCII decimal with an optional sign,
 point and exponent. Python's ``float`` also takes ``1_000``, ``١`` and friends; those are
 ``non_numeric`` here, as offline. ``nan`` and ``inf`` spellings are ``nan`` faults.
+
+With ``blocks=True`` (the live loop), a run of complete good lines comes out as one ``SampleBlock``
+read at once (:mod:`.csv_run`); any line that is not plainly good goes the per-line way below, so
+the samples, faults and their order are the same.
 """
 from __future__ import annotations
 
@@ -19,7 +23,8 @@ import re
 from dataclasses import dataclass
 from typing import Iterable, Mapping, Sequence
 
-from gyronet.stream.events import Fault, Sample, SampleCheck
+from gyronet.stream.csv_run import LineRun
+from gyronet.stream.events import Fault, Sample, SampleBlock, SampleCheck
 
 log = logging.getLogger(__name__)
 
@@ -64,11 +69,17 @@ class CsvLineParser:
         e.g. ``Compensator.input_columns``.
     check
         The time and value checks (default ``SampleCheck()``).
+    blocks
+        Good lines in a row (a flood) come out as one ``SampleBlock`` of columns, read at once
+        (:mod:`.csv_run`), instead of one ``Sample`` each: the same samples, faults and order
+        (``events.as_samples`` takes the blocks apart), for a consumer that takes columns.
     """
 
     def __init__(self, max_line_bytes: int = MAX_LINE_BYTES, required: Iterable[str] = (),
-                 check: SampleCheck | None = None):
+                 check: SampleCheck | None = None, blocks: bool = False):
         self.max_line_bytes = max_line_bytes
+        self.blocks = blocks
+        self._run: LineRun | None = None  # the block reader of the current header
         self.required = list(dict.fromkeys(["time_s", *required]))
         self._current: _Header | None = None
         self.check = check or SampleCheck()
@@ -86,20 +97,32 @@ class CsvLineParser:
         """The columns of the current header (None before one arrived)."""
         return self.header
 
-    def feed(self, data: bytes) -> list[Sample | Fault]:
+    def feed(self, data: bytes) -> list[Sample | SampleBlock | Fault]:
         """Parse the complete lines ``data`` makes; keep the partial last line."""
-        self._buffer += data
-        out: list[Sample | Fault] = []
+        buffer = self._buffer
+        buffer += data
+        out: list[Sample | SampleBlock | Fault] = []
+        position = retry = 0  # retry: where the block path is tried again (the lines before go one by one)
+        if self._run is not None:
+            self._run.forget()  # the buffer changed
         while True:
-            end = self._buffer.find(b"\n")
+            if self.blocks and position >= retry and self._current is not None and not self._discarding:
+                block, step, retry = self._line_run().decode(buffer, position, self.check)
+                if block is not None:
+                    self._header_for(len(self._current.cells), out)  # what the block's first line does to the headers
+                    out.append(block)
+                    position += step
+                    continue
+            end = buffer.find(b"\n", position)
             if end < 0:
                 break
-            line = bytes(self._buffer[:end])
-            del self._buffer[:end + 1]
+            line = bytes(buffer[position:end])
+            position = end + 1
             if self._discarding:
                 self._discarding = False
                 continue
             self._handle(line, out)
+        del buffer[:position]
         if not self._discarding and len(self._buffer) > self.max_line_bytes:
             out.append(Fault("garbage", bytes(self._buffer), f"line longer than {self.max_line_bytes} bytes"))
             self._discarding = True
@@ -115,6 +138,12 @@ class CsvLineParser:
         if rest and not discarding:
             return [Fault("truncated", rest, "stream ended inside a line")]
         return []
+
+    def _line_run(self) -> LineRun:
+        """The block reader of the current header."""
+        if self._run is None or self._run.header is not self._current.cells:
+            self._run = LineRun(self._current.cells, self.max_line_bytes)
+        return self._run
 
     def _handle(self, line: bytes, out: list) -> None:
         if len(line) > self.max_line_bytes:

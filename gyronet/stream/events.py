@@ -60,7 +60,7 @@ class Sample(NamedTuple):
 
 
 class SampleBlock:
-    """Good samples in a row as columns, for a consumer that asked for them (the LP-BUS flood path).
+    """Good samples in a row as columns, for a consumer that asked for them (the LP-BUS and CSV flood paths).
 
     What a run of ``Sample`` objects would hold, without one object per sample; ``samples()``
     gives those objects. A block never starts a new segment (a restart goes sample by sample).
@@ -213,3 +213,23 @@ class SampleCheck:
             log.warning("sensor clock restarted (time_s %r after %r): a new segment", time_s, last)
         self.last_time_s = time_s
         return Sample(float(time_s), dict(values), new_segment)
+
+    def times_ok(self, time_s: np.ndarray) -> np.ndarray:
+        """Where ``check`` would take each time of a run as the next of the same clock (a flood path's time check).
+
+        Each time after the one before it (the first after ``last_time_s``), by at most ``restart_jump_s``;
+        ``last_time_s`` is not moved.
+        """
+        previous = np.empty_like(time_s)
+        previous[1:] = time_s[:-1]
+        previous[0] = time_s[0] if self.last_time_s is None else self.last_time_s
+        ok = time_s > previous
+        if self.restart_jump_s is not None:
+            ok &= ~(time_s - previous > self.restart_jump_s)
+        ok[0] |= self.last_time_s is None  # the first time ever: nothing to compare with
+        return ok
+
+
+def leading(ok: np.ndarray) -> int:
+    """How many of ``ok`` are True before the first False."""
+    return len(ok) if ok.all() else int(np.argmin(ok))

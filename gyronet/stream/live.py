@@ -127,8 +127,8 @@ def run_stream(bundle_dir: str | Path, port: str, output: str | Path, protocol: 
     sensor = None
     if protocol == "lpbus" and lpbus is not None:  # issue 13: set the sensor up before the sample loop
         sensor, parser = _start_lpbus(opened, port, lpbus, compensator, resample, check)
-    if protocol == "lpbus":
-        parser.blocks = True  # a flood's frames as columns, decoded at once: the chunk writer takes them as they are
+    # a flood's frames (or lines) as columns, decoded at once: the chunk writer takes them as they are
+    parser.blocks = True
     try:
         out = LiveWriter(output, bundle_dir)
     except OutputError:

@@ -16,7 +16,7 @@ import math
 
 import numpy as np
 
-from gyronet.stream.events import SampleBlock, SampleCheck
+from gyronet.stream.events import SampleBlock, SampleCheck, leading
 from gyronet.stream.lpbus_layout import LpBusLayout
 
 # the frame as in gyronet.stream.lpbus (which imports this module, so it cannot import them from there)
@@ -64,7 +64,7 @@ class FrameRun:
               & (frames["length"] == self.data_length) & (frames["footer"] == FOOTER_U16))
         if self.layout.sensor_id is not None:
             ok &= frames["sensor_id"] == self.layout.sensor_id
-        n_good = _leading(ok)  # the sums and decoding below only on these: a fault costs what precedes it
+        n_good = leading(ok)  # the sums and decoding below only on these: a fault costs what precedes it
         if n_good == 0:
             return None, 0
         frames = frames[:n_good]
@@ -73,7 +73,7 @@ class FrameRun:
         # LRC = (id + command + length + sum of the data bytes) mod 2**16
         lrc = (frames["sensor_id"].astype(np.uint32) + (GET_SENSOR_DATA + self.data_length)
                + data.sum(axis=1, dtype=np.uint32)) & 0xFFFF
-        n_good = _leading(lrc == frames["lrc"])
+        n_good = leading(lrc == frames["lrc"])
         if n_good == 0:
             return None, 0
         frames = frames[:n_good]
@@ -85,27 +85,11 @@ class FrameRun:
             values /= self.divisors
         if not self.in_degrees:
             values *= self.multipliers
-        n_good = min(n_good, _leading(np.isfinite(time_s) & np.isfinite(values).all(axis=0)))
-        n_good = min(n_good, _leading(_time_ok(time_s, check)))
+        n_good = min(n_good, leading(np.isfinite(time_s) & np.isfinite(values).all(axis=0)))
+        n_good = min(n_good, leading(check.times_ok(time_s)))
         if n_good == 0:
             return None, 0
         columns = {"time_s": time_s[:n_good], **{name: values[i, :n_good] for i, name in enumerate(self.names)}}
         check.last_time_s = float(time_s[n_good - 1])
         return SampleBlock(columns), n_good * self.frame_bytes
 
-
-def _time_ok(time_s: np.ndarray, check: SampleCheck) -> np.ndarray:
-    """Where ``SampleCheck.check`` takes the time as the next of the same clock (each frame after the one before)."""
-    previous = np.empty_like(time_s)
-    previous[1:] = time_s[:-1]
-    previous[0] = time_s[0] if check.last_time_s is None else check.last_time_s
-    ok = time_s > previous
-    if check.restart_jump_s is not None:
-        ok &= ~(time_s - previous > check.restart_jump_s)
-    ok[0] |= check.last_time_s is None  # the first time ever: nothing to compare with
-    return ok
-
-
-def _leading(ok: np.ndarray) -> int:
-    """How many of ``ok`` are True before the first False."""
-    return len(ok) if ok.all() else int(np.argmin(ok))

@@ -50,9 +50,11 @@ def _pinned(cpu: int):
 
 
 def _run_pair(ctx: Context, name: str, recording: Path, bundle: Path, protocol: str, speed: float,
-              n: int, per_sample: bool = False, stream_options: tuple[str, ...] = ()) -> dict[str, Any]:
+              n: int, per_sample: bool = False, stream_options: tuple[str, ...] = (),
+              probe_mode: str | None = None) -> dict[str, Any]:
     """Emulator and stream under the probe (``per_sample``: one sample a chunk; ``stream_options``: more overrides of
-    stream.py); returns their timing arrays."""
+    stream.py; ``probe_mode``: another mode of probe.py for the stream, e.g. ``stream_per_line``); returns their
+    timing arrays."""
     run_dir = ctx.path(f"stream_{name}")
     shutil.rmtree(run_dir, ignore_errors=True)
     run_dir.mkdir(parents=True)
@@ -77,7 +79,7 @@ def _run_pair(ctx: Context, name: str, recording: Path, bundle: Path, protocol: 
                   *ticks, *checks, *stream_options])):
             with open(run_dir / f"{role}.log", "w") as log:
                 processes.append(subprocess.Popen(
-                    [*python, "emulate" if role == "emulator" else "stream_per_sample" if per_sample else "stream",
+                    [*python, "emulate" if role == "emulator" else probe_mode or ("stream_per_sample" if per_sample else "stream"),
                      str(run_dir / f"{role}.npz"),
                      str(ROOT / "scripts" / script), *overrides, f"hydra.run.dir={run_dir / role}"],
                     cwd=ROOT, env=ctx.env(), stdout=log, stderr=subprocess.STDOUT, preexec_fn=_pinned(cpu)))

@@ -19,6 +19,8 @@ show up as growth of the stream's RSS.
 stream_per_sample: the same, with every read's chunk split into chunks of one sample, so each
 sample has its own ``Compensator.process`` call and write: the loop as it was before chunks, the
 reference that the chunked loop is compared with.
+stream_per_line: the same as stream, with the CSV flood path off (``LineRun.decode`` finds no run), so
+every CSV line goes through the per-line parser: the reference the CSV flood path is compared with.
 emulate: ``PtySensor.write`` (the frame's last byte is in the kernel).
 """
 from __future__ import annotations
@@ -187,6 +189,10 @@ def main() -> int:
     sizes = [int(o.split("=", 1)[1]) for o in overrides if o.startswith("max_samples=")]
     capacity = sizes[-1] if sizes else 10_000_000
     probe = StreamProbe(capacity, mode == "stream_per_sample") if mode.startswith("stream") else EmulateProbe()
+    if mode == "stream_per_line":
+        from gyronet.stream.csv_run import LineRun
+
+        LineRun.decode = lambda run, buffer, position, check: (None, 0, len(buffer))
     sys.argv = [script, *overrides]
     code: Any = 0
     try:
