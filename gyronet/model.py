@@ -109,12 +109,16 @@ class RBFNet(nn.Module):
         ``center_init``. No start is better on every sensor: forward selection finds a sharp knee
         that k-means centres miss, k-means centres follow a broad bend with less noise, and only
         the narrow candidates follow a knee 2-3 degC wide.
+    kmeans_members
+        With ``validate_init``: the k-means start is the average of this many fits from different
+        k-means++ seeds (bagging), since one seeding makes the held-out error depend on the seed.
     """
 
     def __init__(self, n_inputs: int, n_outputs: int = 3, n_centers: int = 32, width_init: float = 1.0,
                  rbf_inputs: Optional[List[int]] = None, linear: bool = False, temp_degree: int = 0,
                  temp_index: int = 0, clamp: bool = False, select_capacity: bool = False,
-                 refit_all: bool = False, center_init: str = "kmeans", validate_init: bool = False):
+                 refit_all: bool = False, center_init: str = "kmeans", validate_init: bool = False,
+                 kmeans_members: int = 1):
         super().__init__()
         if center_init not in CENTER_INITS:
             raise ValueError(f"center_init must be one of {', '.join(CENTER_INITS)}, got {center_init!r}")
@@ -125,6 +129,9 @@ class RBFNet(nn.Module):
         self.use_linear, self.temp_degree, self.temp_index, self.clamp = linear, int(temp_degree), temp_index, clamp
         self.select_capacity, self.refit_all = bool(select_capacity), bool(refit_all)
         self.center_init, self.validate_init = center_init, bool(validate_init)
+        if int(kmeans_members) < 1:
+            raise ValueError(f"kmeans_members must be 1 or more, got {kmeans_members!r}")
+        self.kmeans_members = int(kmeans_members)
         # training keeps every width at or above this (normalised units); ``"ols*"`` set it to their narrowest candidate
         self.train_min_width = _MIN_WIDTH
         if (center_init != "kmeans" or self.validate_init) and self.rbf_inputs != [temp_index]:

@@ -128,6 +128,10 @@ def train_run(data: DriftData, model: torch.nn.Module, optim: Callable | None, o
     else:
         metrics = fit(model, data, optim, seed=seed, writer=writer, **train_cfg)
     log.info("validation 60 s RMSE: %s deg/s", ", ".join(f"{a}={metrics[f'val/rmse_{a}_dps']:.4g}" for a in AXES))
+    if "val/fits_tried" in metrics:  # gyronet.starts: how much the held-out figure moved over what was tried
+        log.info("validation 60 s RMSE over the %d fits tried (starts and seeds): %s", int(metrics["val/fits_tried"]),
+                 ", ".join(f"{a} {metrics[f'val/lowest_{a}_dps']:.4g}-{metrics[f'val/highest_{a}_dps']:.4g} deg/s "
+                           f"({metrics[f'val/spread_{a}_pct']:.0f} %)" for a in AXES))
     bundle_dir = save_bundle(model, _meta(model, data), out_dir / "compensator", kalman_stage(kalman_cfg, model, data))
     evaluations = evaluate_paths(bundle_dir, eval_paths, eval_block_s)
     report = {"model": model_info(model), "train_path": data.path, "metrics": metrics,

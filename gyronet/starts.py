@@ -106,26 +106,61 @@ def held_out_residuals(model: nn.Module, data: DriftData) -> np.ndarray:
     return residual_block_means(time_s, y - predict(model, x), 60.0)
 
 
+def member_seeds(seed: int, members: int) -> list[int]:
+    """The seeds of a start's members: disjoint for different ``seed``, the first one ``seed`` itself."""
+    return [seed] + [seed * members + j + 1_000_003 for j in range(1, members)]
+
+
+def _fit_start(model: nn.Module, init: str, data: DriftData, optim: Callable | None,
+               options: Mapping[str, Any]) -> tuple[dict[str, float], list[tuple[dict, nn.Module]], nn.Module]:
+    """One start's validated fits (``kmeans_members`` seeds for k-means) and their equal-weight average."""
+    from gyronet.train import fit, validation_metrics
+
+    seeds = member_seeds(options["seed"], getattr(model, "kmeans_members", 1)) if init == "kmeans" else [options["seed"]]
+    runs = []
+    for seed in seeds:
+        member = copy.deepcopy(model)
+        member.center_init, member.validate_init = init, False
+        runs.append((fit(member, data, optim, **{**options, "seed": seed}), member))
+    if len(runs) == 1:
+        return runs[0][0], runs, runs[0][1]
+    average = copy.deepcopy(model)
+    _average_into(average, [m for _, m in runs])
+    metrics = {**min((f for f, _ in runs), key=lambda f: f["val/rmse_dps"]), **validation_metrics(average, data)}
+    for axis in AXES:
+        levels = [f.get(f"model/level_{axis}") for f, _ in runs]
+        if None not in levels:
+            metrics[f"model/level_{axis}"] = float(max(levels))
+    return metrics, runs, average
+
+
+def _average_into(model: nn.Module, members: Sequence[nn.Module]) -> None:
+    """``model`` becomes the members' equal-weight average on every axis."""
+    mix_into(model, members, np.full((len(members), len(AXES)), 1.0 / len(members)))
+
+
 def fit_every_start(model: nn.Module, data: DriftData, optim: Callable | None, options: Mapping[str, Any],
                     for_bundle: bool) -> dict[str, float]:
     """A validated fit from each ``center_init``, mixed per axis by the held-out blocks, into ``model``.
 
     With ``for_bundle`` each fit continues on every block (``RBFNet.refit_all``) before the mixing,
     with the weights and capacity its validation chose; the returned validation figures are the
-    mixture's before that, as for a single start.
+    mixture's before that, as for a single start. The returned ``val/spread_*`` figures are the
+    spread of the held-out error over every fit tried (``spread_figures``).
     """
     from gyronet.model import CENTER_INITS, SelectionError
-    from gyronet.train import _continue_on_every_block, fit, validation_metrics
+    from gyronet.train import _continue_on_every_block, validation_metrics
 
-    trials = []
+    trials, tried = [], []
     for init in CENTER_INITS:
-        trial = copy.deepcopy(model)
-        trial.center_init, trial.validate_init = init, False
         try:
-            trials.append((fit(trial, data, optim, **options), init, trial))
+            metrics, members, start = _fit_start(model, init, data, optim, options)
         except SelectionError as err:  # a narrow range: the other starts alone
             log.info("no %s start (%s)", init, err)
-    weights = stack_weights(*(held_out_residuals(t, data) for _, _, t in trials))
+            continue
+        trials.append((metrics, init, start, members))
+        tried += [f for f, _ in members]
+    weights = stack_weights(*(held_out_residuals(t, data) for _, _, t, _ in trials))
     used = [k for k in range(len(trials)) if weights[k].any()]
     mix_into(model, [trials[k][2] for k in used], weights[used])
     final = {**min((t[0] for t in trials), key=lambda f: f["val/rmse_dps"]), **validation_metrics(model, data)}
@@ -135,18 +170,38 @@ def fit_every_start(model: nn.Module, data: DriftData, optim: Callable | None, o
             final[f"model/level_{axis}"] = float(max(levels))
     if len(trials) > 1:
         log.info("starts mixed per axis (held-out %s deg/s): weights x/y/z %s; mixture %.4g deg/s",
-                 ", ".join(f"{i} {f['val/rmse_dps']:.4g}" for f, i, _ in trials),
-                 ", ".join(f"{i} " + "/".join(f"{w:.2f}" for w in row) for (_, i, _), row in zip(trials, weights)),
+                 ", ".join(f"{i} {f['val/rmse_dps']:.4g}" for f, i, _, _ in trials),
+                 ", ".join(f"{i} " + "/".join(f"{w:.2f}" for w in row) for (_, i, _, _), row in zip(trials, weights)),
                  final["val/rmse_dps"])
     if for_bundle:  # each start continued on every block, then mixed again with the same weights
         plain = {k: v for k, v in options.items() if k != "writer"}
         for k in used:
-            _continue_on_every_block(trials[k][2], data, trials[k][0], optim, plain)
+            _, _, start, members = trials[k]
+            for metrics, member in members:
+                _continue_on_every_block(member, data, metrics, optim, plain)
+            if len(members) > 1:
+                _average_into(start, [m for _, m in members])
         mix_into(model, [trials[k][2] for k in used], weights[used])
-    weight_of = dict(zip((i for _, i, _ in trials), weights))
+    weight_of = dict(zip((i for _, i, _, _ in trials), weights))
     final.update({f"model/{init}_weight_{axis}": float(weight_of[init][a]) if init in weight_of else 0.0
                   for init in CENTER_INITS for a, axis in enumerate(AXES)})
+    final.update(spread_figures(tried))
     return final
 
 
-__all__ = ["fit_every_start", "held_out_residuals", "mix_into", "stack_weights"]
+def spread_figures(tried: Sequence[Mapping[str, float]]) -> dict[str, float]:
+    """Per axis, the held-out 60 s RMSE's lowest and highest over the fits tried, and the spread in %.
+
+    ``val/spread_{axis}_pct`` is (highest - lowest) / lowest: how much the held-out figure moves
+    with the start and the seed, which train.py prints beside the bundle's figure.
+    """
+    out: dict[str, float] = {"val/fits_tried": float(len(tried))}
+    for axis in AXES:
+        values = [f[f"val/rmse_{axis}_dps"] for f in tried]
+        low, high = min(values), max(values)
+        out.update({f"val/lowest_{axis}_dps": low, f"val/highest_{axis}_dps": high,
+                    f"val/spread_{axis}_pct": 100.0 * (high - low) / low if low > 0 else 0.0})
+    return out
+
+
+__all__ = ["fit_every_start", "held_out_residuals", "member_seeds", "mix_into", "spread_figures", "stack_weights"]

@@ -10,7 +10,7 @@ from gyronet.baselines import LinearFeatures, TempPolynomial
 from gyronet.dataset import Blocks
 from gyronet.export import load_bundle, save_bundle
 from gyronet.model import CENTER_INITS, OLS_NARROW_WIDTHS_C, OLS_WIDTHS_C, RBFNet, forward_select
-from gyronet.starts import held_out_residuals, mix_into, stack_weights
+from gyronet.starts import held_out_residuals, member_seeds, mix_into, stack_weights
 from gyronet.train import fit, validation_metrics
 
 
@@ -285,6 +285,37 @@ def test_validate_init_mixes_the_starts_per_axis_by_their_held_out_residuals(tmp
     meta = {"features": [], "fs_hz": 10.0, "temp_range_c": [-40, 60]}
     loaded = load_bundle(save_bundle(model, meta, tmp_path / "b"))[0]
     assert_close(loaded(x), model(x).detach())
+
+
+def test_kmeans_members_average_fits_from_disjoint_seeds_and_report_the_spread():
+    """``kmeans_members``: the k-means start is the mean of fits from other seeds; the spread is reported."""
+    x, y, _ = _knee_data()
+    data = _blocks(x, y)
+    assert member_seeds(0, 3)[0] == 0 and not set(member_seeds(0, 3)) & set(member_seeds(1, 3))
+    members = []
+    for seed in member_seeds(5, 2):
+        members.append(RBFNet(3, 3, 6, rbf_inputs=[0], linear=True, temp_degree=3, clamp=True))
+        fit(members[-1], data, max_epochs=100, progress=False, seed=seed)
+    ols = {i: RBFNet(3, 3, 6, rbf_inputs=[0], linear=True, temp_degree=3, clamp=True, center_init=i)
+           for i in CENTER_INITS[1:]}
+    for part in ols.values():
+        fit(part, data, max_epochs=100, progress=False, seed=5)
+    model = RBFNet(3, 3, 6, rbf_inputs=[0], linear=True, temp_degree=3, clamp=True, validate_init=True,
+                   kmeans_members=2)
+    metrics = fit(model, data, max_epochs=100, progress=False, seed=5)
+    with torch.no_grad():
+        average = 0.5 * (members[0](x) + members[1](x))
+        parts = [average] + [ols[i](x) for i in CENTER_INITS[1:]]
+        weights = np.array([[metrics[f"model/{i}_weight_{a}"] for a in "xyz"] for i in CENTER_INITS])
+        assert_close(model(x), sum(torch.tensor(w) * p for w, p in zip(weights, parts)), rtol=0, atol=1e-12)
+    assert metrics["val/fits_tried"] == 4
+    tried = [validation_metrics(m, data) for m in members + list(ols.values())]
+    for a in "xyz":
+        values = [t[f"val/rmse_{a}_dps"] for t in tried]
+        assert metrics[f"val/lowest_{a}_dps"] == pytest.approx(min(values))
+        assert metrics[f"val/spread_{a}_pct"] == pytest.approx(100 * (max(values) / min(values) - 1))
+    with pytest.raises(ValueError, match="kmeans_members"):
+        RBFNet(3, 3, 6, kmeans_members=0)
 
 
 def test_mix_into_refuses_fits_normalised_on_different_data():
