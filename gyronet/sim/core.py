@@ -181,8 +181,8 @@ def simulate(profile: str = "paper", fs_hz: float = 10.0, seed: int = 0, sensor_
         :class:`NoiseSpec`, :class:`TemperatureSpec`, :class:`EarthSpec`, :class:`AccelSpec` or a
         mapping of their fields.
     sensor
-        Overrides of the drawn sensor (``swing_dps`` or any :class:`SensorModel` field), and the
-        run-level ``turn_on_bias_dps`` and ``g_sensitivity_dps_per_g`` of :mod:`gyronet.sim.run`.
+        ``distribution`` (``default`` or ``survey``, :func:`gyronet.sim.sensor.draw_sensor`), overrides
+        of the drawn sensor (``swing_dps`` or any :class:`SensorModel` field), and the run-level ``turn_on_bias_dps`` and ``g_sensitivity_dps_per_g`` of :mod:`gyronet.sim.run`.
     rate_steps
         True rotation steps, see :func:`rate_steps_dps`.
     effects
@@ -204,15 +204,16 @@ def simulate(profile: str = "paper", fs_hz: float = 10.0, seed: int = 0, sensor_
                                         duration_s=duration_s, **dict(profile_options or {}))
     n = len(time_s)
     sensor = dict(sensor or {})
-    bias_std_dps = sensor.pop("turn_on_bias_dps", 0.0)
+    bias_std_dps = sensor.pop("turn_on_bias_dps", None)
     g_sensitivity = g_sensitivity_matrix(sensor_seed, sensor.pop("g_sensitivity_dps_per_g", 0.0))
     model = draw_sensor(sensor_seed, **sensor)
+    if bias_std_dps is None:  # the sensor's own spread (zero but for the survey distribution)
+        bias_std_dps = model.turn_on_bias_std_dps
     die_c = model.die_temperature_c(time_s, chamber_c, fs_hz)
-    die_rate_c_per_s = np.gradient(die_c, time_s)
     temp_rng = np.random.default_rng([int(seed), 2])
     temp_c = quantise(die_c + temp_spec.noise_c * temp_rng.standard_normal(n), temp_spec.lsb_c)
 
-    drift = model.drift_dps(die_c, die_rate_c_per_s)
+    drift = model.history_drift_dps(time_s, die_c, fs_hz)
     truth_effects: dict[str, np.ndarray] = {}
     aux_columns: dict[str, np.ndarray] = {}
     applied = []
@@ -270,6 +271,8 @@ def simulate(profile: str = "paper", fs_hz: float = 10.0, seed: int = 0, sensor_
             "static_rate_dps": ",".join(f"{v:.9g}" for v in earth_dps)}
     if orientation is not None:
         meta["orientation"] = orientation
+    if sensor.get("distribution", "default") != "default":
+        meta["sensor_distribution"] = sensor["distribution"]
     if int(decimate) != 1:
         meta["decimated_from_hz"] = f"{fs_hz:g}"
     log.info("simulated %d samples (%.2f h, profile %s, effects %s)", len(recording["time_s"]),
