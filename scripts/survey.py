@@ -12,6 +12,7 @@ from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig, OmegaConf
 
 from gyronet.errors import GyronetError
+from gyronet.sim.survey_sensor import check_distribution
 from gyronet.survey import TRAIN_PATH, History, SurveySpec, summarize, survey, to_markdown, write_outputs
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # scripts/_cli.py, also when this file is run by path
@@ -37,6 +38,9 @@ def _method(model: str, overrides: list) -> dict:
 def main(cfg: DictConfig) -> None:
     if cfg.n_sensors < 1:
         raise GyronetError(f"n_sensors must be at least 1, got {cfg.n_sensors}")
+    if cfg.jobs < 1:
+        raise GyronetError(f"jobs must be a whole number >= 1, got {cfg.jobs}")
+    check_distribution(cfg.distribution)
     methods = {str(name): _method(str(model), list(cfg.train_overrides)) for name, model in cfg.methods.items()}
     for key in ("ours", "reference"):
         if cfg[key] not in methods:

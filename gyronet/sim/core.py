@@ -207,7 +207,8 @@ def simulate(profile: str = "paper", fs_hz: float = 10.0, seed: int = 0, sensor_
     bias_std_dps = sensor.pop("turn_on_bias_dps", None)
     g_sensitivity = g_sensitivity_matrix(sensor_seed, sensor.pop("g_sensitivity_dps_per_g", 0.0))
     model = draw_sensor(sensor_seed, **sensor)
-    if bias_std_dps is None:  # the sensor's own spread (zero but for the survey distribution)
+    bias_seed = None if bias_std_dps is not None else sensor_seed
+    if bias_std_dps is None:  # the sensor's own spread (zero but for the survey distribution), its own draw
         bias_std_dps = model.turn_on_bias_std_dps
     die_c = model.die_temperature_c(time_s, chamber_c, fs_hz)
     temp_rng = np.random.default_rng([int(seed), 2])
@@ -233,7 +234,7 @@ def simulate(profile: str = "paper", fs_hz: float = 10.0, seed: int = 0, sensor_
     run_parts: dict[str, np.ndarray] = {}
     turned_deg = orientation_deg(orientation, earth_spec.orientation_deg)
     if np.any(per_axis(bias_std_dps, "sensor.turn_on_bias_dps") != 0):
-        run_parts["turn_on_bias"] = np.broadcast_to(turn_on_bias_dps(seed, bias_std_dps), (n, N_AXES))
+        run_parts["turn_on_bias"] = np.broadcast_to(turn_on_bias_dps(seed, bias_std_dps, bias_seed), (n, N_AXES))
     if np.any(g_sensitivity != 0):
         # drift += G f, f the specific force of this orientation (g)
         run_parts["g_sensitivity"] = np.broadcast_to(g_sensitivity @ gravity_g(turned_deg), (n, N_AXES))
