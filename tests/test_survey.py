@@ -147,7 +147,11 @@ def test_the_survey_command_writes_its_table_and_resumes(tmp_path, monkeypatch, 
             assert all(np.isfinite(scores[v]).all() and min(scores[v]) > 0.5 for v in ("deployed", "as_is"))
         # few steps and a tiny record, but trained on its own history the network still beats the cubic
         assert max(s["methods"]["gyronet"]["deployed"]) < max(s["methods"]["PX4-cubic"]["deployed"])
-    assert len((out / "survey_sensors.csv").read_text().splitlines()) == 3
+    lines = (out / "survey_sensors.csv").read_text().splitlines()
+    assert len(lines) == 3 and lines[0].startswith("sensor_seed,sharpest_knee_c,max_rate_gain_deg_per_c,max_axis_lag_s,")
+    assert lines[0].split(",").index("gyronet:deployed:worst") == 7
+    assert [float(v) for v in lines[1].split(",")[4:8]] == pytest.approx(sensors[0]["methods"]["gyronet"]["deployed"]
+                                                                           + [max(sensors[0]["methods"]["gyronet"]["deployed"])], abs=1e-4)
     assert not list(out.glob("sensors/*/*.csv")), "records removed once scored (keep_records=false)"
     # resumed: run again, both sensors are read back as they were (no new training), the same table
     results = sorted(out.glob("sensors/*/result.json"))

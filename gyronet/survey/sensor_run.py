@@ -162,11 +162,12 @@ def score_bundle(bundle: Path, check_csv: Path, startup_s: float, turn_on_differ
 
 
 def describe_sensor(sensor: Mapping[str, Any]) -> dict[str, float]:
-    """A few figures of a drawn sensor for the per-sensor table: its sharpest knee, strongest dT/dt gain."""
+    """A few figures of a drawn sensor for the per-sensor table: sharpest knee, strongest dT/dt gain, longest axis lag."""
     widths = list(sensor["knee_width_c"]) + [w for w, a in zip(sensor.get("knee2_width_c", []),
                                                                   sensor.get("knee2_dps", [])) if a]
     return {"sharpest_knee_c": float(min(widths)),
-            "max_rate_gain_deg_per_c": float(np.max(np.abs(sensor["rate_gain_deg_per_c"])))}
+            "max_rate_gain_deg_per_c": float(np.max(np.abs(sensor["rate_gain_deg_per_c"]))),
+            "max_axis_lag_s": float(np.max(sensor.get("axis_lag_s", [0.0])))}
 
 
 def run_sensor(sensor_seed: int, spec: SurveySpec, folder: str | Path, reuse: bool = True) -> dict[str, Any]:

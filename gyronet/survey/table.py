@@ -13,7 +13,7 @@ import numpy as np
 
 from gyronet.atomic import atomic_output
 from gyronet.data import AXES
-from gyronet.survey.sensor_run import VARIANTS
+from gyronet.survey.sensor_run import VARIANTS, describe_sensor
 
 log = logging.getLogger(__name__)
 
@@ -112,14 +112,16 @@ def to_markdown(summary: Mapping[str, Any], settings: Mapping[str, Any]) -> str:
 def sensors_csv(results: Sequence[Mapping[str, Any]]) -> str:
     """One row per sensor: each method's x, y, z and worst axis for every variant, and the sensor's figures."""
     methods = list(results[0]["methods"])
-    header = ["sensor_seed", "sharpest_knee_c", "max_rate_gain_deg_per_c"]
+    header = ["sensor_seed", "sharpest_knee_c", "max_rate_gain_deg_per_c", "max_axis_lag_s"]
     header += [f"{m}:{v}:{a}" for m in methods for v in VARIANTS for a in (*AXES, "worst")]
     header += ["seconds"]
     out = io.StringIO()
     writer = csv.writer(out, lineterminator="\n")
     writer.writerow(header)
     for r in sorted(results, key=lambda r: int(r["sensor_seed"])):
-        cells: list[Any] = [r["sensor_seed"], f"{r['sharpest_knee_c']:.2f}", f"{r['max_rate_gain_deg_per_c']:.2f}"]
+        figures = describe_sensor(r["sensor"])
+        cells: list[Any] = [r["sensor_seed"], f"{figures['sharpest_knee_c']:.2f}",
+                            f"{figures['max_rate_gain_deg_per_c']:.2f}", f"{figures['max_axis_lag_s']:.1f}"]
         for m in methods:
             for v in VARIANTS:
                 values = r["methods"][m][v]
