@@ -153,6 +153,13 @@ def test_the_survey_command_writes_its_table_and_resumes(tmp_path, monkeypatch, 
     assert [float(v) for v in lines[1].split(",")[4:8]] == pytest.approx(sensors[0]["methods"]["gyronet"]["deployed"]
                                                                            + [max(sensors[0]["methods"]["gyronet"]["deployed"])], abs=1e-4)
     assert not list(out.glob("sensors/*/*.csv")), "records removed once scored (keep_records=false)"
+    # a sensor that failed is counted and named, and left out of the figures
+    failed = summarize([*sensors, {"sensor_seed": 7, "error": "check.csv: nothing left to score"}], "gyronet", "PX4-cubic")
+    assert failed["n_sensors"] == 2 and failed["rows"] == summarize(sensors, "gyronet", "PX4-cubic")["rows"]
+    assert "Failed, left out of every figure above (1): 7 (check.csv: nothing left to score)." in to_markdown(
+        failed, everything["settings"])
+    with pytest.raises(GyronetError, match="every sensor of the survey failed; the first: boom"):
+        summarize([{"sensor_seed": 7, "error": "boom"}], "gyronet", "PX4-cubic")
     # resumed: run again, both sensors are read back as they were (no new training), the same table
     results = sorted(out.glob("sensors/*/result.json"))
     stamps = [p.stat().st_mtime_ns for p in results]

@@ -58,13 +58,16 @@ def survey(seeds: Sequence[int], spec: SurveySpec, out_dir: str | Path, jobs: in
         raise GyronetError(f"jobs must be a whole number >= 1, got {jobs}")
     if not spec.methods:
         raise GyronetError("the survey needs at least one method")
-    tasks = (delayed(run_sensor)(seed, spec, sensor_folder(out_dir, seed), reuse) for seed in seeds)
+    tasks = (delayed(_run_or_fail)(seed, spec, sensor_folder(out_dir, seed), reuse) for seed in seeds)
     results: dict[int, dict[str, Any]] = {}
     bar = tqdm(total=len(seeds), desc="survey", unit="sensor", disable=None if progress is None else not progress)
     with bar:
         for result in Parallel(n_jobs=int(jobs), return_as="generator_unordered")(tasks):
             results[int(result["sensor_seed"])] = result
             bar.update(1)
+            if "error" in result:
+                log.warning("sensor %d failed (left out of the figures): %s", result["sensor_seed"], result["error"])
+                continue
             log.info("sensor %d %s in %.0f s: worst axis %s", result["sensor_seed"],
                      "reused" if result.get("reused") else "done", result["seconds"],
                      ", ".join(f"{m} {worst_axis(result, m):.2f}" for m in result["methods"]))
@@ -72,3 +75,12 @@ def survey(seeds: Sequence[int], spec: SurveySpec, out_dir: str | Path, jobs: in
     if n_reused:
         log.info("%d of %d sensors reused from %s", n_reused, len(seeds), out_dir)
     return [results[s] for s in seeds]
+
+
+def _run_or_fail(sensor_seed: int, spec: SurveySpec, folder: Path, reuse: bool) -> dict[str, Any]:
+    """:func:`run_sensor`, or its one-line error as ``{"sensor_seed", "error"}``: one bad sensor does not end
+    a survey of a hundred (it is counted and named in the table, and tried again on the next run)."""
+    try:
+        return run_sensor(sensor_seed, spec, folder, reuse)
+    except GyronetError as err:
+        return {"sensor_seed": int(sensor_seed), "error": str(err).splitlines()[0] if str(err) else type(err).__name__}

@@ -13,6 +13,7 @@ import numpy as np
 
 from gyronet.atomic import atomic_output
 from gyronet.data import AXES
+from gyronet.errors import GyronetError
 from gyronet.survey.sensor_run import VARIANTS, describe_sensor
 
 log = logging.getLogger(__name__)
@@ -52,6 +53,10 @@ def summarize(results: Sequence[Mapping[str, Any]], ours: str, reference: str,
         ``misses`` (sensor seed -> what it misses).
     """
     goals = goal_keys(**dict(goals or {}))
+    failed = {int(r["sensor_seed"]): r["error"] for r in results if "error" in r}
+    results = [r for r in results if "error" not in r]
+    if not results:
+        raise GyronetError(f"every sensor of the survey failed; the first: {next(iter(failed.values()))}")
     seeds = [int(r["sensor_seed"]) for r in results]
     methods = list(results[0]["methods"])
     rows = []
@@ -75,7 +80,7 @@ def summarize(results: Sequence[Mapping[str, Any]], ours: str, reference: str,
     ours_row = next(r for r in rows if r["method"] == ours and r["variant"] == "deployed")
     met = {"p90": ours_row["p90"] <= goals["p90_max"], "worst": ours_row["worst"] <= goals["worst_max"],
            "vs_reference": vs_reference["worst"] <= goals["vs_reference_max"]}
-    return {"n_sensors": len(results), "seeds": seeds, "ours": ours, "reference": reference, "rows": rows,
+    return {"n_sensors": len(results), "failed": failed, "seeds": seeds, "ours": ours, "reference": reference, "rows": rows,
             "vs_reference": vs_reference, "goals": goals, "met": met, "misses": misses,
             "seconds_per_sensor": float(np.median([r["seconds"] for r in results]))}
 
@@ -106,11 +111,16 @@ def to_markdown(summary: Mapping[str, Any], settings: Mapping[str, Any]) -> str:
     misses = summary["misses"]
     lines.append("Sensors that miss a goal: " + ("none" if not misses else "; ".join(
         f"{seed} ({', '.join(what)})" for seed, what in sorted(misses.items(), key=lambda kv: int(kv[0])))) + ".")
+    failed = summary.get("failed") or {}
+    if failed:
+        lines += ["", f"Failed, left out of every figure above ({len(failed)}): " + "; ".join(
+            f"{seed} ({error})" for seed, error in sorted(failed.items(), key=lambda kv: int(kv[0]))) + "."]
     return "\n".join(lines) + "\n"
 
 
 def sensors_csv(results: Sequence[Mapping[str, Any]]) -> str:
     """One row per sensor: each method's x, y, z and worst axis for every variant, and the sensor's figures."""
+    results = [r for r in results if "error" not in r]
     methods = list(results[0]["methods"])
     header = ["sensor_seed", "sharpest_knee_c", "max_rate_gain_deg_per_c", "max_axis_lag_s"]
     header += [f"{m}:{v}:{a}" for m in methods for v in VARIANTS for a in (*AXES, "worst")]
