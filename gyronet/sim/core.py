@@ -181,8 +181,10 @@ def simulate(profile: str = "paper", fs_hz: float = 10.0, seed: int = 0, sensor_
         :class:`NoiseSpec`, :class:`TemperatureSpec`, :class:`EarthSpec`, :class:`AccelSpec` or a
         mapping of their fields.
     sensor
-        Overrides of the drawn sensor (``swing_dps`` or any :class:`SensorModel` field), and the
-        run-level ``turn_on_bias_dps`` and ``g_sensitivity_dps_per_g`` of :mod:`gyronet.sim.run`.
+        ``distribution`` (``default`` or ``survey``, :func:`gyronet.sim.sensor.draw_sensor`), overrides
+        of the drawn sensor (``swing_dps`` or any :class:`SensorModel` field), and the run-level
+        ``turn_on_bias_dps`` and ``g_sensitivity_dps_per_g`` of :mod:`gyronet.sim.run` (without
+        ``turn_on_bias_dps``, a survey sensor's own ``turn_on_bias_std_dps``).
     rate_steps
         True rotation steps, see :func:`rate_steps_dps`.
     effects
@@ -204,15 +206,17 @@ def simulate(profile: str = "paper", fs_hz: float = 10.0, seed: int = 0, sensor_
                                         duration_s=duration_s, **dict(profile_options or {}))
     n = len(time_s)
     sensor = dict(sensor or {})
-    bias_std_dps = sensor.pop("turn_on_bias_dps", 0.0)
+    bias_std_dps = sensor.pop("turn_on_bias_dps", None)
     g_sensitivity = g_sensitivity_matrix(sensor_seed, sensor.pop("g_sensitivity_dps_per_g", 0.0))
     model = draw_sensor(sensor_seed, **sensor)
+    bias_seed = None if bias_std_dps is not None else sensor_seed
+    if bias_std_dps is None:  # the sensor's own spread (zero but for the survey distribution), its own draw
+        bias_std_dps = model.turn_on_bias_std_dps
     die_c = model.die_temperature_c(time_s, chamber_c, fs_hz)
-    die_rate_c_per_s = np.gradient(die_c, time_s)
     temp_rng = np.random.default_rng([int(seed), 2])
     temp_c = quantise(die_c + temp_spec.noise_c * temp_rng.standard_normal(n), temp_spec.lsb_c)
 
-    drift = model.drift_dps(die_c, die_rate_c_per_s)
+    drift = model.history_drift_dps(time_s, die_c, fs_hz)
     truth_effects: dict[str, np.ndarray] = {}
     aux_columns: dict[str, np.ndarray] = {}
     applied = []
@@ -232,7 +236,7 @@ def simulate(profile: str = "paper", fs_hz: float = 10.0, seed: int = 0, sensor_
     run_parts: dict[str, np.ndarray] = {}
     turned_deg = orientation_deg(orientation, earth_spec.orientation_deg)
     if np.any(per_axis(bias_std_dps, "sensor.turn_on_bias_dps") != 0):
-        run_parts["turn_on_bias"] = np.broadcast_to(turn_on_bias_dps(seed, bias_std_dps), (n, N_AXES))
+        run_parts["turn_on_bias"] = np.broadcast_to(turn_on_bias_dps(seed, bias_std_dps, bias_seed), (n, N_AXES))
     if np.any(g_sensitivity != 0):
         # drift += G f, f the specific force of this orientation (g)
         run_parts["g_sensitivity"] = np.broadcast_to(g_sensitivity @ gravity_g(turned_deg), (n, N_AXES))
@@ -270,6 +274,8 @@ def simulate(profile: str = "paper", fs_hz: float = 10.0, seed: int = 0, sensor_
             "static_rate_dps": ",".join(f"{v:.9g}" for v in earth_dps)}
     if orientation is not None:
         meta["orientation"] = orientation
+    if sensor.get("distribution", "default") != "default":
+        meta["sensor_distribution"] = sensor["distribution"]
     if int(decimate) != 1:
         meta["decimated_from_hz"] = f"{fs_hz:g}"
     log.info("simulated %d samples (%.2f h, profile %s, effects %s)", len(recording["time_s"]),

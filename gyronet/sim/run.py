@@ -63,13 +63,18 @@ def orientation_deg(name: str | None, earth_orientation_deg: Any) -> tuple[float
     return ORIENTATIONS_DEG[name]
 
 
-def turn_on_bias_dps(seed: int, std_dps: Any) -> np.ndarray:
-    """This run's constant offset per axis, shape (3,), deg/s: normal of ``std_dps``, from ``seed``."""
+def turn_on_bias_dps(seed: int, std_dps: Any, sensor_seed: int | None = None) -> np.ndarray:
+    """This run's constant offset per axis, shape (3,), deg/s: normal of ``std_dps``, from ``seed``.
+
+    With ``sensor_seed`` (the survey distribution's own spread) the draw is of the pair, so that
+    sensors simulated with the same run seeds do not share their turn-on biases' signs and sizes.
+    """
     std = per_axis(std_dps, "sensor.turn_on_bias_dps")
     if np.any(std < 0):
         raise GyronetError(f"sensor.turn_on_bias_dps must be >= 0, got {std_dps!r}")
     # its own stream: the noise, the profile and the effects keep theirs
-    return std * np.random.default_rng([int(seed), 8]).standard_normal(N_AXES)
+    key = [int(seed), 8] if sensor_seed is None else [int(seed), int(sensor_seed), 8]
+    return std * np.random.default_rng(key).standard_normal(N_AXES)
 
 
 def g_sensitivity_matrix(sensor_seed: int, value: Any) -> np.ndarray:

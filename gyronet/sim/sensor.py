@@ -17,12 +17,20 @@ and ``Tdot = dT_die/dt`` the true die rate (degC/s)::
 ``g`` and ``h`` are ``rate_gain_deg_per_c`` and ``rate_temp_gain_deg_per_c`` (deg/s per
 degC/s). Every coefficient is drawn from ``sensor_seed`` alone (:func:`draw_sensor`), so one seed
 is one physical sensor whatever its thermal history.
+
+Four further terms are zero by default (today's sensors are unchanged) and drawn by the wider
+``distribution="survey"`` (:mod:`gyronet.sim.survey_sensor`): a second knee
+``knee2_a tanh((T - knee2_c_a) / knee2_width_c_a)``; a per-axis thermal lag ``axis_lag_s`` (axis
+``a`` sees ``lag(T_die, axis_lag_s_a)``, not the die temperature the sensor reports); cross-axis
+coupling ``drift += C (drift - offset)`` (axis ``a`` carries ``C[a, b]`` of axis ``b``'s thermal
+terms); and ``turn_on_bias_std_dps``, the spread of a constant drawn anew each power-up
+(:func:`gyronet.sim.run.turn_on_bias_dps`).
 """
 from __future__ import annotations
 
 import dataclasses
 import logging
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -88,22 +96,49 @@ class SensorModel:
     rate_temp_gain_deg_per_c: np.ndarray
     ref_c: float = 10.0
     scale_c: float = 50.0
+    # the survey distribution's terms (module docstring); at these defaults they change nothing
+    knee2_dps: np.ndarray = field(default_factory=lambda: np.zeros(N_AXES))
+    knee2_c: np.ndarray = field(default_factory=lambda: np.zeros(N_AXES))
+    knee2_width_c: np.ndarray = field(default_factory=lambda: np.ones(N_AXES))
+    axis_lag_s: np.ndarray = field(default_factory=lambda: np.zeros(N_AXES))
+    coupling: np.ndarray = field(default_factory=lambda: np.zeros((N_AXES, N_AXES)))  # rows: the axis that gains
+    turn_on_bias_std_dps: np.ndarray = field(default_factory=lambda: np.zeros(N_AXES))
 
-    def static_bias_dps(self, temp_c: np.ndarray) -> np.ndarray:
-        """Bias at a settled die temperature (no dT/dt terms), shape (n, 3), deg/s."""
-        temp_c = np.asarray(temp_c, dtype=float)[:, None]
+    def _static(self, temp_c: np.ndarray) -> np.ndarray:
+        """Cubic and knees at temperatures of shape (n, 1) or (n, 3), before the coupling."""
         x = (temp_c - self.ref_c) / self.scale_c
         cubic = self.offset_dps + x * self.poly_dps[:, 0] + x**2 * self.poly_dps[:, 1] \
             + x**3 * self.poly_dps[:, 2]
-        return cubic + self.knee_dps * np.tanh((temp_c - self.knee_c) / self.knee_width_c)
+        bias = cubic + self.knee_dps * np.tanh((temp_c - self.knee_c) / self.knee_width_c)
+        if np.any(self.knee2_dps):
+            bias = bias + self.knee2_dps * np.tanh((temp_c - self.knee2_c) / self.knee2_width_c)
+        return bias
+
+    def _coupled(self, drift_dps: np.ndarray) -> np.ndarray:
+        if not np.any(self.coupling):
+            return drift_dps
+        # drift += C (drift - offset): each axis carries a share of the others' thermal terms
+        return drift_dps + (drift_dps - self.offset_dps) @ self.coupling.T
+
+    def static_bias_dps(self, temp_c: np.ndarray) -> np.ndarray:
+        """Bias at a settled temperature (no dT/dt terms), shape (n, 3), deg/s; ``temp_c`` (n,) or per axis (n, 3)."""
+        return self._coupled(self._static(_columns(temp_c)))
 
     def drift_dps(self, die_temp_c: np.ndarray, die_rate_c_per_s: np.ndarray) -> np.ndarray:
-        """The drift formula of the module docstring, shape (n, 3), deg/s."""
-        x = (np.asarray(die_temp_c, dtype=float)[:, None] - self.ref_c) / self.scale_c
-        rate = np.asarray(die_rate_c_per_s, dtype=float)[:, None]
+        """The drift formula of the module docstring, shape (n, 3), deg/s; inputs (n,) or per axis (n, 3)."""
+        temp_c = _columns(die_temp_c)
+        x = (temp_c - self.ref_c) / self.scale_c
+        rate = _columns(die_rate_c_per_s)
         # (g + h x) * dT/dt
         rate_term = (self.rate_gain_deg_per_c + self.rate_temp_gain_deg_per_c * x) * rate
-        return self.static_bias_dps(die_temp_c) + rate_term
+        return self._coupled(self._static(temp_c) + rate_term)
+
+    def history_drift_dps(self, time_s: np.ndarray, die_temp_c: np.ndarray, fs_hz: float) -> np.ndarray:
+        """The drift along a die temperature history, shape (n, 3), deg/s: each axis through its ``axis_lag_s``."""
+        if not np.any(self.axis_lag_s):
+            return self.drift_dps(die_temp_c, np.gradient(die_temp_c, time_s))
+        axis_c = np.column_stack([first_order_lag(die_temp_c, fs_hz, tau_s) for tau_s in self.axis_lag_s])
+        return self.drift_dps(axis_c, np.gradient(axis_c, time_s, axis=0))
 
     def swing_dps(self) -> np.ndarray:
         """Peak-to-peak static bias over -40..60 degC, shape (3,), deg/s."""
@@ -116,18 +151,33 @@ class SensorModel:
         return first_order_lag(chamber_c, fs_hz, self.thermal_tau_s) + warm
 
     def to_dict(self) -> dict[str, Any]:
-        """Plain numbers and lists, for JSON metadata."""
+        """Plain numbers and lists, for JSON metadata (the survey's terms only when on, as before them)."""
+        defaults = SensorModel.__dataclass_fields__
         return {k: (v.tolist() if isinstance(v, np.ndarray) else v)
-                for k, v in dataclasses.asdict(self).items()}
+                for k, v in dataclasses.asdict(self).items()
+                if k not in SURVEY_FIELDS or not np.array_equal(v, defaults[k].default_factory())}
 
 
-def draw_sensor(sensor_seed: int, swing_dps: Any = None, **overrides: Any) -> SensorModel:
+SURVEY_FIELDS = ("knee2_dps", "knee2_c", "knee2_width_c", "axis_lag_s", "coupling", "turn_on_bias_std_dps")
+
+
+def _columns(values: Any) -> np.ndarray:
+    """(n,) as (n, 1), (n, 3) as it is: one temperature for every axis, or one per axis."""
+    array = np.asarray(values, dtype=float)
+    return array[:, None] if array.ndim == 1 else array
+
+
+def draw_sensor(sensor_seed: int, swing_dps: Any = None, distribution: str = "default",
+                **overrides: Any) -> SensorModel:
     """Draw one sensor's coefficients from its own seed.
 
     Parameters
     ----------
     sensor_seed
         Seed of this sensor; the thermal history and the noise never touch this stream.
+    distribution
+        ``default``: the sensors every README table uses (described below), bit for bit as ever.
+        ``survey``: the same sensor made harder, :func:`gyronet.sim.survey_sensor.draw_survey_sensor`.
     swing_dps
         Peak-to-peak static bias over -40..60 degC per axis, deg/s; by default drawn in
         [1.2, 3.8] deg/s. The cubic and knee coefficients are scaled to reach it.
@@ -141,6 +191,10 @@ def draw_sensor(sensor_seed: int, swing_dps: Any = None, **overrides: Any) -> Se
         Time constants a few hundred s, 1.5-4 degC of self-heating, dT/dt terms of 0.05-0.3 deg/s
         at 1 degC/min, a tanh knee that leaves a cubic fit a misfit of a few % of the swing.
     """
+    if distribution != "default":
+        from gyronet.sim.survey_sensor import check_distribution
+
+        check_distribution(distribution)
     rng = np.random.default_rng([int(sensor_seed), 7001])
     sign = lambda: rng.choice([-1.0, 1.0], size=N_AXES)  # noqa: E731
     poly = np.column_stack([sign() * rng.uniform(0.4, 1.0, N_AXES),
@@ -168,6 +222,10 @@ def draw_sensor(sensor_seed: int, swing_dps: Any = None, **overrides: Any) -> Se
     scale = target / model.swing_dps()
     model = dataclasses.replace(model, poly_dps=model.poly_dps * scale[:, None],
                                 knee_dps=model.knee_dps * scale)
+    if distribution != "default":
+        from gyronet.sim.survey_sensor import widen
+
+        model = widen(model, sensor_seed, distribution)
     return _override(model, overrides)
 
 

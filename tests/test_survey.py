@@ -1,0 +1,184 @@
+"""The survey: the wider sensor distribution draws what it says, and scripts/survey.py writes its table.
+
+The figures are the lead's full run's business (README "Survey"); here two sensors on tiny 1 Hz
+histories with a few training steps check the command end to end, in this process (``runpy``, as
+``python scripts/survey.py`` runs it), its resume, and its one-line errors.
+"""
+import dataclasses
+import json
+import re
+import runpy
+import sys
+
+import numpy as np
+import pytest
+
+from gyronet.errors import GyronetError
+from gyronet.sim import draw_sensor, simulate
+from gyronet.sim.sensor import SURVEY_FIELDS, SensorModel
+from gyronet.sim.survey_sensor import SURVEY_RANGES
+from gyronet.survey import summarize, to_markdown
+
+from conftest import ROOT
+
+SEEDS = range(40)
+AXES = ("x", "y", "z")
+
+
+def inside(values, name: str) -> bool:
+    low, high = SURVEY_RANGES[name]
+    return bool(np.all((np.asarray(values) >= low) & (np.asarray(values) <= high)))
+
+
+def test_the_survey_distribution_draws_its_ranges_and_is_wider_than_the_default():
+    sensors = [draw_sensor(s, distribution="survey") for s in SEEDS]
+    for seed, m in zip(SEEDS, sensors):
+        base = draw_sensor(seed)
+        assert inside(m.knee_width_c, "knee_width_c")
+        on = np.flatnonzero(m.knee2_dps)
+        assert len(on) == 1, "a second knee on exactly one axis"
+        axis = on[0]
+        swing = dataclasses.replace(m, coupling=np.zeros((3, 3))).swing_dps()
+        np.testing.assert_allclose(swing, base.swing_dps(), rtol=1e-9)  # today's swing, before the coupling
+        share = abs(m.knee2_dps[axis]) / swing[axis]
+        assert 0.03 < share < 0.2  # 6-14 % drawn, then the axis rescaled by a few %
+        assert inside(m.knee2_width_c[axis], "knee2_width_c") and inside(m.knee2_c[axis], "knee2_c")
+        assert abs(m.knee2_c[axis] - m.knee_c[axis]) >= SURVEY_RANGES["knee2_min_separation_c"][0]
+        assert inside(np.abs(m.rate_gain_deg_per_c), "rate_gain_abs_deg_per_c")
+        assert inside(np.abs(m.rate_temp_gain_deg_per_c) / np.abs(m.rate_gain_deg_per_c), "rate_temp_gain_share")
+        assert inside(m.axis_lag_s, "axis_lag_s") and inside(m.turn_on_bias_std_dps, "turn_on_bias_std_dps")
+        assert np.all(np.diag(m.coupling) == 0) and inside(np.abs(m.coupling), "coupling_abs")
+        np.testing.assert_array_equal(m.offset_dps, base.offset_dps)  # the same sensor, made harder
+    # wider than today's: knees under 4 degC wide and dT/dt gains over 12 deg/degC both occur
+    assert min(m.knee_width_c.min() for m in sensors) < 3.0
+    assert max(np.abs(m.rate_gain_deg_per_c).max() for m in sensors) > 18.0
+    with pytest.raises(GyronetError, match="unknown sensor distribution 'wide'"):
+        draw_sensor(0, distribution="wide")
+
+
+def test_the_default_distribution_is_unchanged():
+    for seed in (0, 3):
+        m = draw_sensor(seed)
+        assert not set(SURVEY_FIELDS) & set(m.to_dict()), "old sensors' truth metadata keeps its keys"
+        for name in SURVEY_FIELDS:
+            value = getattr(m, name)
+            assert np.array_equal(value, SensorModel.__dataclass_fields__[name].default_factory())
+        sim = simulate(profile="cycle", fs_hz=1, seed=1, sensor_seed=seed, duration_s=3000)
+        assert "turn_on_bias_x_dps" not in sim.truth and "sensor_distribution" not in sim.meta
+
+
+def test_second_knee_coupling_and_axis_lag_enter_the_drift_as_written():
+    m = draw_sensor(5, distribution="survey")
+    temp_c = np.linspace(-40, 60, 201)
+    rate = np.full_like(temp_c, 1 / 60)
+    plain = dataclasses.replace(m, coupling=np.zeros((3, 3)), axis_lag_s=np.zeros(3))
+    uncoupled = plain.drift_dps(temp_c, rate)
+    # drift += C (drift - offset)
+    np.testing.assert_allclose(m.drift_dps(temp_c, rate), uncoupled + (uncoupled - m.offset_dps) @ m.coupling.T)
+    no_knee2 = dataclasses.replace(plain, knee2_dps=np.zeros(3))
+    axis = int(np.flatnonzero(m.knee2_dps)[0])
+    expected = m.knee2_dps[axis] * np.tanh((temp_c - m.knee2_c[axis]) / m.knee2_width_c[axis])
+    np.testing.assert_allclose(uncoupled[:, axis] - no_knee2.drift_dps(temp_c, rate)[:, axis], expected, atol=1e-12)
+    # an axis lag: on a ramp the axis sees an older, lower temperature
+    time_s = np.arange(4000.0)
+    ramp_c = 20 + time_s / 60
+    lagged = dataclasses.replace(plain, axis_lag_s=np.array([30.0, 0.0, 0.0]))
+    drift = lagged.history_drift_dps(time_s, ramp_c, 1.0)
+    late = slice(1000, None)
+    np.testing.assert_allclose(drift[late, 1], plain.history_drift_dps(time_s, ramp_c, 1.0)[late, 1])
+    decay = np.exp(-1 / 30.0)
+    seen_c = 20 + (time_s - decay / (1 - decay)) / 60  # the sampled 30 s lag, settled on a ramp: 29.5 s behind
+    np.testing.assert_allclose(drift[late, 0], plain.drift_dps(seen_c, np.full_like(seen_c, 1 / 60))[late, 0],
+                               atol=1e-9)
+
+
+def test_a_survey_sensor_gets_a_new_turn_on_bias_each_run_and_the_truth_adds_up():
+    runs = [simulate(profile="constant", fs_hz=1, seed=seed, sensor_seed=2, duration_s=600,
+                     sensor={"distribution": "survey"}) for seed in (1, 2)]
+    biases = [np.array(sim.run["turn_on_bias_dps"]) for sim in runs]
+    assert not np.allclose(biases[0], biases[1])
+    # another sensor with the same run seed does not share the draw (its z-scores are its own)
+    other = simulate(profile="constant", fs_hz=1, seed=1, sensor_seed=3, duration_s=600, sensor={"distribution": "survey"})
+    z_scores = [np.array(s.run["turn_on_bias_dps"]) / s.sensor.turn_on_bias_std_dps for s in (runs[0], other)]
+    assert not np.allclose(z_scores[0], z_scores[1])
+    sim = runs[0]
+    assert sim.meta["sensor_distribution"] == "survey"
+    for a in AXES:
+        total = sim.truth[f"true_rate_{a}_dps"] + sim.truth[f"drift_{a}_dps"] + sim.truth[f"noise_{a}_dps"]
+        np.testing.assert_allclose(sim.recording[f"gyro_{a}_dps"], total, atol=1e-12)
+
+
+TINY = ["n_sensors=2", "jobs=1", "fs_hz=1", "startup_s=300", "progress=false",
+        'train_overrides=["train.max_epochs=40","train.patience=20"]',
+        "+train_history.profile_options.dwell_s=300", "+train_history.profile_options.rate_c_per_min=4",
+        "check_history.duration_s=7200"]
+
+
+def run_survey(monkeypatch, *args: str) -> int:
+    """``python scripts/survey.py ARGS`` in this process: its exit status."""
+    monkeypatch.setattr(sys, "argv", ["scripts/survey.py", *args])
+    monkeypatch.delenv("HYDRA_FULL_ERROR", raising=False)
+    try:
+        runpy.run_path(str(ROOT / "scripts" / "survey.py"), run_name="__main__")
+    except SystemExit as stop:
+        return stop.code if isinstance(stop.code, int) else 1
+    return 0
+
+
+def test_the_survey_command_writes_its_table_and_resumes(tmp_path, monkeypatch, capsys):
+    out = tmp_path / "survey"
+    assert run_survey(monkeypatch, *TINY, f"hydra.run.dir={out}") == 0
+    table = (out / "survey.md").read_text()
+    rows = [line for line in table.splitlines() if line.startswith("| ") and "---" not in line]
+    assert rows[0] == "| method | scored | median | 90th percentile | worst (sensor) |"
+    assert [r.split(" | ")[0].strip("| ") for r in rows[1:]] == ["gyronet"] * 3 + ["PX4-cubic"] * 3 + ["PX4-script"] * 3
+    for row in rows[1:]:
+        assert re.search(r"\| \d+\.\d\d \| \d+\.\d\d \| \d+\.\d\d \([01]\) \|$", row), row
+    assert "gyronet / PX4-cubic, worst axis, as deployed: worst sensor" in table
+    assert "Sensors that miss a goal: " in table
+    everything = json.loads((out / "survey.json").read_text())
+    sensors = everything["sensors"]
+    assert [s["sensor_seed"] for s in sensors] == [0, 1]
+    # the table is the sensors' figures: recomputed from the per-sensor results it matches
+    assert to_markdown(summarize(sensors, "gyronet", "PX4-cubic"), everything["settings"]) == table
+    for s in sensors:
+        for method in ("gyronet", "PX4-cubic", "PX4-script"):
+            scores = s["methods"][method]
+            assert all(np.isfinite(scores[v]).all() and min(scores[v]) > 0.5 for v in ("deployed", "as_is"))
+        # few steps and a tiny record, but trained on its own history the network still beats the cubic
+        assert max(s["methods"]["gyronet"]["deployed"]) < max(s["methods"]["PX4-cubic"]["deployed"])
+    lines = (out / "survey_sensors.csv").read_text().splitlines()
+    assert len(lines) == 3 and lines[0].startswith("sensor_seed,sharpest_knee_c,max_rate_gain_deg_per_c,max_axis_lag_s,")
+    assert lines[0].split(",").index("gyronet:deployed:worst") == 7
+    assert [float(v) for v in lines[1].split(",")[4:8]] == pytest.approx(sensors[0]["methods"]["gyronet"]["deployed"]
+                                                                           + [max(sensors[0]["methods"]["gyronet"]["deployed"])], abs=1e-4)
+    assert not list(out.glob("sensors/*/*.csv")), "records removed once scored (keep_records=false)"
+    # a sensor that failed is counted and named, and left out of the figures
+    failed = summarize([*sensors, {"sensor_seed": 7, "error": "check.csv: nothing left to score"}], "gyronet", "PX4-cubic")
+    assert failed["n_sensors"] == 2 and failed["rows"] == summarize(sensors, "gyronet", "PX4-cubic")["rows"]
+    assert "Failed, left out of every figure above (1): 7 (check.csv: nothing left to score)." in to_markdown(
+        failed, everything["settings"])
+    with pytest.raises(GyronetError, match="every sensor of the survey failed; the first: boom"):
+        summarize([{"sensor_seed": 7, "error": "boom"}], "gyronet", "PX4-cubic")
+    # resumed: run again, both sensors are read back as they were (no new training), the same table
+    results = sorted(out.glob("sensors/*/result.json"))
+    stamps = [p.stat().st_mtime_ns for p in results]
+    capsys.readouterr()
+    assert run_survey(monkeypatch, *TINY, f"hydra.run.dir={out}") == 0
+    assert [p.stat().st_mtime_ns for p in results] == stamps
+    assert (out / "survey.md").read_text() == table
+    assert "2 of 2 sensors reused" in (out / "survey.log").read_text()
+
+
+@pytest.mark.parametrize("args, expected", [
+    (["n_sensors=0"], "n_sensors must be at least 1"),
+    (["jobs=0"], "jobs must be a whole number >= 1"),
+    (["+methods.mine=nope"], "methods: no conf/model/nope.yaml"),
+    (["reference=PX4"], "reference=PX4 is not one of the methods"),
+    (["distribution=wide"], "unknown sensor distribution 'wide'"),
+])
+def test_bad_options_are_one_line(tmp_path, monkeypatch, capsys, args, expected):
+    n = [] if args[0].startswith("n_sensors") else ["n_sensors=1"]
+    code = run_survey(monkeypatch, *TINY[1:], *n, *args, f"hydra.run.dir={tmp_path}")
+    err = [line for line in capsys.readouterr().err.splitlines() if line.strip()]
+    assert code == 2 and len(err) == 1 and err[0].startswith("error: ") and expected in err[0], err
