@@ -58,6 +58,11 @@ def _meta(model: torch.nn.Module, data: DriftData) -> dict[str, Any]:
     source = gyro_source_of([r.recording.meta for r in runs] or [data.recording.meta])
     if source is not None:  # issue 13: raw (LP-BUS) or host-corrected (an LPMS-Control log) gyro
         meta["gyro_source"] = source
+    from gyronet.error_bar_fit import error_bar_meta
+
+    bar = error_bar_meta(model, data)
+    if bar is not None:
+        meta["error_bar"] = bar
     return meta
 
 

@@ -30,6 +30,7 @@ import numpy as np
 import torch
 from torch import nn
 
+from gyronet import error_bar_fit
 from gyronet.data import AXES
 from gyronet.dataset import DriftData, residual_block_means
 
@@ -139,10 +140,15 @@ def fit_every_start(model: nn.Module, data: DriftData, optim: Callable | None, o
                  ", ".join(f"{i} " + "/".join(f"{w:.2f}" for w in row) for (_, i, _), row in zip(trials, weights)),
                  final["val/rmse_dps"])
     if for_bundle:  # each start continued on every block, then mixed again with the same weights
+        parts = [trials[k][2] for k in used]
+        # the error bar's held-out blocks (gyronet.error_bar_fit), taken before the refit sees them
+        time_s, x, y = data.val_full
+        stats = error_bar_fit.held_out_stats(model, parts, time_s, x, y, data.train.x)
         plain = {k: v for k, v in options.items() if k != "writer"}
         for k in used:
             _continue_on_every_block(trials[k][2], data, trials[k][0], optim, plain)
-        mix_into(model, [trials[k][2] for k in used], weights[used])
+        mix_into(model, parts, weights[used])
+        error_bar_fit.attach(model, stats, parts)
     weight_of = dict(zip((i for _, i, _ in trials), weights))
     final.update({f"model/{init}_weight_{axis}": float(weight_of[init][a]) if init in weight_of else 0.0
                   for init in CENTER_INITS for a, axis in enumerate(AXES)})

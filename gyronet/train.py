@@ -97,6 +97,9 @@ def fit(model: torch.nn.Module, data: DriftData, optim: Callable | None = None, 
     if threads:
         torch.set_num_threads(threads)
     torch.manual_seed(seed)
+    from gyronet.error_bar_fit import detach
+
+    detach(model)  # a new fit: the error bar's statistics of an earlier one no longer apply
     x = torch.as_tensor(data.train.x, dtype=torch.float64)
     y = torch.as_tensor(data.train.y, dtype=torch.float64)
     offsets = getattr(data, "offsets", None)  # gyronet.runs.RunOffsets: one constant per training run and axis
@@ -173,6 +176,11 @@ def fit(model: torch.nn.Module, data: DriftData, optim: Callable | None = None, 
     final = {"train/loss": best["train/loss"], "train/steps": step + 1, "train/best_step": best["train/best_step"],
              **validation_metrics(model, data), **chosen}
     _check_finite(final, "the trained model")
+    if for_bundle and getattr(model, "refit_all", False) and _every_block(data) is not None:
+        from gyronet import error_bar_fit  # the error bar's held-out blocks, before the refit sees them
+
+        time_s, vx, vy = data.val_full
+        error_bar_fit.attach(model, error_bar_fit.held_out_stats(model, None, time_s, vx, vy, data.train.x))
     if for_bundle:
         _continue_on_every_block(model, data, final, optim, dict(
             max_epochs=max_epochs, patience=patience, eval_every=eval_every, seed=seed, weight_decay=weight_decay,
