@@ -21,8 +21,12 @@ log = logging.getLogger(__name__)
 STATS_ATTR = "_error_bar_stats"  # held-out statistics a fit attaches to its model (taken before any refit)
 MEMBERS_ATTR = "_error_bar_members"  # the bundle's members (the starts it mixes), when more than one
 CACHE_ATTR = "_error_bar_meta"  # (data, the meta.json block) once computed
+# beyond the box, a straight-line continuation is taken to be off by this share of its slope (per
+# normalised unit of distance); set once on calibration sensors 10 and 11 (README "Error bars"), never
+# on the sensors the table scores
+EXTRAPOLATION_SHARE = 0.1
 MIN_BLOCKS = 4  # fewer held-out blocks than this: the floor is their RMS, the spread scale 1
-_FLOOR_GRID = np.geomspace(1e-3, 3.0, 80)  # times the held-out blocks' RMS
+_FLOOR_GRID = np.geomspace(1e-3, 3.0, 200)  # times the held-out blocks' RMS
 _SCALE_GRID = np.concatenate([[0.0], np.geomspace(0.05, 30.0, 60)])
 
 
@@ -35,12 +39,18 @@ def box_of(model: torch.nn.Module, x_train: np.ndarray) -> tuple[np.ndarray, ...
     return mean, std, z.min(0), z.max(0)
 
 
-def edge_slopes(model: torch.nn.Module, x_train: np.ndarray, box: Sequence[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
-    """(3, n_features) RMS sensitivity of the drift (deg/s per normalised unit) near each edge of the box.
+def edge_slopes(model: torch.nn.Module, x_train: np.ndarray, box: Sequence[np.ndarray],
+                extrapolation_share: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """(3, n_features): how much the drift's slope (deg/s per normalised unit) changes where each edge of the box is crossed.
 
-    Taken over the training rows within ``EDGE_FRACTION`` of the box's width of that edge, by a
-    one-sided difference pointing into the box (a clamped input has no slope beyond its edge).
+    Over the training rows within ``EDGE_FRACTION`` of the box's width of that edge: the slope just
+    inside (a one-sided difference pointing into the box) minus the slope a quarter of the box's
+    width beyond the edge, RMS. A model that holds its edge value there (a clamped input) loses its
+    whole slope; one that continues a straight line (the rate terms) loses what it curved, and is
+    taken to be off by ``extrapolation_share`` (default ``EXTRAPOLATION_SHARE``) of its slope besides:
+    a slope fitted on one side of the data only is not known beyond it.
     """
+    share = EXTRAPOLATION_SHARE if extrapolation_share is None else float(extrapolation_share)
     from gyronet.train import predict
 
     mean, std, low, high = box
@@ -49,15 +59,21 @@ def edge_slopes(model: torch.nn.Module, x_train: np.ndarray, box: Sequence[np.nd
     slopes = np.zeros((2, 3, x_train.shape[1]))
     for f in range(x_train.shape[1]):
         step = 1e-3 * width[f]
-        for side, (rows, sign) in enumerate(((z[:, f] <= low[f] + EDGE_FRACTION * width[f], 1.0),
-                                             (z[:, f] >= high[f] - EDGE_FRACTION * width[f], -1.0))):
+        for side, (rows, edge, sign) in enumerate(((z[:, f] <= low[f] + EDGE_FRACTION * width[f], low[f], 1.0),
+                                                   (z[:, f] >= high[f] - EDGE_FRACTION * width[f], high[f], -1.0))):
             x = x_train[rows]
             if not len(x):
                 continue
-            moved = x.copy()
-            moved[:, f] += sign * step * std[f]
-            derivative = (predict(model, moved) - predict(model, x)) / (sign * step)
-            slopes[side, :, f] = np.sqrt(np.mean(derivative ** 2, axis=0))
+
+            def slope(at: np.ndarray) -> np.ndarray:
+                moved = at.copy()
+                moved[:, f] += sign * step * std[f]
+                return (predict(model, moved) - predict(model, at)) / (sign * step)
+
+            beyond = x.copy()
+            beyond[:, f] = mean[f] + std[f] * (edge - sign * 0.25 * width[f])
+            inside, outside = slope(x), slope(beyond)
+            slopes[side, :, f] = np.sqrt(np.mean((inside - outside) ** 2 + (share * outside) ** 2, axis=0))
     return slopes[0], slopes[1]
 
 
@@ -99,11 +115,14 @@ def merge_stats(stats: Sequence[Mapping[str, np.ndarray]]) -> dict[str, np.ndarr
     return out
 
 
-def calibrate(stats: Mapping[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray, dict[str, Any]]:
-    """Per axis, the floor and spread scale of maximum Gaussian likelihood on the held-out blocks.
+def calibrate(stats: Mapping[str, np.ndarray], fit_scale: bool = False) -> tuple[np.ndarray, np.ndarray, dict[str, Any]]:
+    """Per axis, the floor (and with ``fit_scale`` the spread scale) of maximum Gaussian likelihood on the held-out blocks.
 
     Block b's residual has variance floor^2 + (scale spread_b)^2 + outside_b^2 + noise: the noise
-    of a 60 s mean is known and the box term fixed, so the two free numbers are found on a grid.
+    of a 60 s mean is known and the box term fixed, so the free numbers are found on a grid. The
+    scale stays 1 (the members' spread taken as it is) unless ``fit_scale``: the held-out blocks of
+    one recording are two or three spans, too few to tell a floor from a scale (on calibration
+    sensors 10 and 11 fitting both was the worse of the two, README "Error bars").
 
     Returns
     -------
@@ -121,11 +140,12 @@ def calibrate(stats: Mapping[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray, 
             continue
         fixed = outside[:, a] ** 2 + noise[a]
         # var[i, j, b] for floor i, scale j, block b
-        var = ((_FLOOR_GRID * rms) ** 2)[:, None, None] + (_SCALE_GRID ** 2)[None, :, None] * (spread[:, a] ** 2)[None, None] \
+        scales = _SCALE_GRID if fit_scale else np.ones(1)
+        var = ((_FLOOR_GRID * rms) ** 2)[:, None, None] + (scales ** 2)[None, :, None] * (spread[:, a] ** 2)[None, None] \
             + fixed[None, None]
         nll = np.sum(np.log(var) + r2[None, None] / var, axis=2)
         i, j = np.unravel_index(int(np.argmin(nll)), nll.shape)
-        floor[a], scale[a] = _FLOOR_GRID[i] * rms, _SCALE_GRID[j]
+        floor[a], scale[a] = _FLOOR_GRID[i] * rms, scales[j]
         within[a] = np.mean(r2 <= var[i, j])
     info = {"block_s": BLOCK_S, "n_blocks": int(len(residual)), "within_1_sigma": within.tolist(),
             "noise_block_dps": np.sqrt(noise).tolist()}

@@ -157,6 +157,11 @@ def _eval_metrics(result: Mapping[str, Any], prefix: str) -> dict[str, float]:
         for axis in AXES:
             metrics[f"{prefix}/residual_{axis}_dps"] = result["truth"]["residual_dps"][axis]
             metrics[f"{prefix}/ratio_to_floor_{axis}"] = result["truth"]["ratio_to_floor"][axis]
+    for key, values in result.get("error_bar", {}).items():  # eval/median_sigma_x_dps, eval/within_1_sigma_x
+        if isinstance(values, dict):
+            name = key.replace("_dps", "")
+            metrics.update({f"{prefix}/{name}_{axis}{'_dps' if key.endswith('_dps') else ''}": v
+                            for axis, v in values.items()})
     return metrics
 
 
@@ -173,6 +178,8 @@ def _log_run(writer: Any, metrics: Mapping[str, float], evaluations: Mapping[str
             {stage: result["allan"][stage] for stage in result["allan"]}, title=f"Allan deviation: {name}"))
         tb.log_figure(writer, f"eval/{name}/raw_vs_compensated", plots.raw_vs_compensated(arrays))
         tb.log_figure(writer, f"eval/{name}/residual_vs_temperature", plots.residual_vs_temperature(arrays))
+        if "error_bar" in result:  # the sigma band: is the error bar honest on this record?
+            tb.log_figure(writer, f"eval/{name}/drift_sigma", plots.drift_sigma_band(arrays))
     tb.log_hparams(writer, hparams, {k: v for k, v in metrics.items() if k.startswith("val/") and np.isfinite(v)})
     writer.flush()
 

@@ -72,6 +72,33 @@ def block_coverage(time_s: np.ndarray, error_dps: np.ndarray, sigma_dps: np.ndar
     return {**shares(np.ones(len(error), dtype=bool)), "inside": shares(~out), "outside": shares(out)}
 
 
+def error_bar_summary(time_s: np.ndarray, out: Any, drift_true_dps: np.ndarray | None,
+                      block_s: float = BLOCK_S) -> dict[str, Any]:
+    """The error bar on a held-out record (``train.evaluate``): its median, and with the truth the share of
+    blocks within 1 and 2 sigma of the drift error. ``out`` is a ``Compensated``."""
+    summary: dict[str, Any] = {"median_sigma_dps": dict(zip(AXES, np.median(out.drift_sigma_dps, 0).tolist()))}
+    if drift_true_dps is not None:
+        score = block_coverage(time_s, out.drift_dps - drift_true_dps, out.drift_sigma_dps, out.out_of_range,
+                               block_s=block_s)
+        summary.update(within_1_sigma=score["within_1_sigma"], within_2_sigma=score["within_2_sigma"],
+                       n_blocks=score["n_blocks"])
+    return summary
+
+
+def allan_sigma_summary(sigma_dps: np.ndarray) -> dict[str, dict[str, float]]:
+    """Per axis, the error bar beside an Allan report of a compensated file (``scripts/allan.py``):
+    ``drift_sigma_median_dps``, ``drift_sigma_p95_dps`` and ``drift_sigma_max_dps`` of its ``drift_sigma`` column."""
+    out = {}
+    for i, axis in enumerate(AXES):
+        column = np.asarray(sigma_dps[:, i], dtype=np.float64)
+        column = column[np.isfinite(column)]
+        if len(column):
+            out[axis] = {"drift_sigma_median_dps": float(np.median(column)),
+                         "drift_sigma_p95_dps": float(np.percentile(column, 95)),
+                         "drift_sigma_max_dps": float(column.max())}
+    return out
+
+
 def _compensated(path: str | Path) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     recording = load_recording(path)
     columns = recording.columns
@@ -152,4 +179,4 @@ def write_table(rows: Sequence[Mapping[str, Any]], output: str | Path, config: M
     return output
 
 
-__all__ = ["GOAL", "block_coverage", "pooled_share", "score_simulated", "score_still", "to_markdown", "write_table"]
+__all__ = ["GOAL", "allan_sigma_summary", "block_coverage", "error_bar_summary", "pooled_share", "score_simulated", "score_still", "to_markdown", "write_table"]

@@ -280,12 +280,16 @@ def evaluate(compensator: Any, recording: Any, truth: Mapping[str, np.ndarray] |
                   "compensated": _allan_summary(allan_report(recording.time_s, out.rate_dps))},
     }
     arrays = {"time_s": recording.time_s, "temp_c": recording.temp_c, "raw_dps": raw,
-              "compensated_dps": out.rate_dps, "drift_hat_dps": out.drift_dps}
+              "compensated_dps": out.rate_dps, "drift_hat_dps": out.drift_dps, "drift_sigma_dps": out.drift_sigma_dps}
     if truth is not None:
         report["truth"] = residual_report(recording.time_s, out.rate_dps, truth, block_s)
         noise = np.column_stack([truth[f"noise_{a}_dps"] for a in AXES])
         report["allan"]["noise_only"] = _allan_summary(allan_report(recording.time_s, noise))
         arrays["drift_true_dps"] = np.column_stack([truth[f"drift_{a}_dps"] for a in AXES])
+    if out.drift_sigma_dps is not None and np.isfinite(out.drift_sigma_dps).all():
+        from gyronet.sigma_table import error_bar_summary
+
+        report["error_bar"] = error_bar_summary(recording.time_s, out, arrays.get("drift_true_dps"), block_s)
     report["_arrays"] = arrays
     return report
 
