@@ -139,18 +139,18 @@ def fit_every_start(model: nn.Module, data: DriftData, optim: Callable | None, o
                  ", ".join(f"{i} {f['val/rmse_dps']:.4g}" for f, i, _ in trials),
                  ", ".join(f"{i} " + "/".join(f"{w:.2f}" for w in row) for (_, i, _), row in zip(trials, weights)),
                  final["val/rmse_dps"])
+    parts = [trials[k][2] for k in used]
+    # the error bar's held-out blocks (gyronet.error_bar_fit), taken before any refit sees them; its
+    # members are the validated fits: their spread is what the held-out blocks calibrate
+    time_s, x, y = data.val_full
+    stats = error_bar_fit.held_out_stats(model, parts, time_s, x, y, data.train.x)
+    validated = [copy.deepcopy(p) for p in parts] if for_bundle else parts
     if for_bundle:  # each start continued on every block, then mixed again with the same weights
-        parts = [trials[k][2] for k in used]
-        # the error bar's held-out blocks (gyronet.error_bar_fit), taken before the refit sees them
-        time_s, x, y = data.val_full
-        stats = error_bar_fit.held_out_stats(model, parts, time_s, x, y, data.train.x)
-        # the bar's members are the validated fits: their spread is what the held-out blocks calibrated
-        validated = [copy.deepcopy(p) for p in parts]
         plain = {k: v for k, v in options.items() if k != "writer"}
         for k in used:
             _continue_on_every_block(trials[k][2], data, trials[k][0], optim, plain)
         mix_into(model, parts, weights[used])
-        error_bar_fit.attach(model, stats, validated)
+    error_bar_fit.attach(model, stats, validated)
     weight_of = dict(zip((i for _, i, _ in trials), weights))
     final.update({f"model/{init}_weight_{axis}": float(weight_of[init][a]) if init in weight_of else 0.0
                   for init in CENTER_INITS for a, axis in enumerate(AXES)})
