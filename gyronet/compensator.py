@@ -87,9 +87,10 @@ class Compensator:
     def load(cls, bundle_dir: str | Path) -> "Compensator":
         """Load a bundle folder (CONTRACT.md section 2); a damaged or mismatched bundle is a one-line BundleError."""
         bundle = read_bundle(bundle_dir)
-        compensator = cls(bundle.model, bundle.meta, bundle.kalman, source=bundle_dir)
-        check_model(bundle.model, bundle.facts, compensator.meta, str(bundle_dir))
-        return compensator
+        # the model against meta.json first: a mismatched model.pt is named as such, not by what follows from it
+        validate_meta(bundle.meta, f"{bundle_dir}/{META_FILE}")
+        check_model(bundle.model, bundle.facts, bundle.meta, str(bundle_dir))
+        return cls(bundle.model, bundle.meta, bundle.kalman, source=bundle_dir)
 
     def use_small_chunks(self, model: torch.nn.Module | None = None) -> bool:
         """Evaluate chunks of up to ``SMALL_ROWS`` rows in plain floats (``gyronet.small_model``), not TorchScript.
