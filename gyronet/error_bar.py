@@ -33,6 +33,7 @@ from gyronet.errors import BundleError
 log = logging.getLogger(__name__)
 
 BLOCK_S = 60.0  # the contract's residual block: what the bar is calibrated on
+CHUNK_ROWS = 65536  # rows per members call on a long batch (gyronet.compensator.CHUNK_ROWS: in cache)
 EDGE_FRACTION = 0.1  # the share of the box's width at each edge where the edge slopes are taken
 META_KEY = "error_bar"
 FORMAT = 1
@@ -73,20 +74,29 @@ class ErrorBar:
         self.n_members = 1 if members is None else int(members.n_outputs) // 3
         self.calibration = dict(calibration or {})
         self._row_members = None
+        self._scripted = None  # the members network, scripted and frozen on first use
 
     # -- evaluation -------------------------------------------------------------------------------
 
     def member_drift(self, features: np.ndarray) -> np.ndarray:
-        """Every member's drift, (n, n_members, 3), deg/s."""
+        """Every member's drift, (n, n_members, 3), deg/s (TorchScript, frozen, in chunks as the drift is)."""
+        if self._scripted is None:
+            import copy
+
+            self._scripted = torch.jit.freeze(torch.jit.script(copy.deepcopy(self.members)))
+        x = torch.from_numpy(np.ascontiguousarray(features, dtype=np.float64))
         with torch.no_grad():
-            out = self.members(torch.from_numpy(np.ascontiguousarray(features, dtype=np.float64))).numpy()
-        return out.reshape(len(features), self.n_members, 3)
+            out = torch.cat([self._scripted(chunk) for chunk in x.split(CHUNK_ROWS)]) if len(x) else x.new_zeros(
+                (0, 3 * self.n_members))
+        return out.numpy().reshape(len(features), self.n_members, 3)
 
     def spread(self, features: np.ndarray) -> np.ndarray:
         """The members' standard deviation per axis, (n, 3), deg/s (0 with one member)."""
         if self.members is None:
             return np.zeros((len(features), 3))
-        return self.member_drift(features).std(axis=1)
+        out = self.member_drift(features)
+        deviation = out - out.mean(axis=1, keepdims=True)
+        return np.sqrt(np.einsum("nka,nka->na", deviation, deviation) / self.n_members)
 
     def outside_dps(self, features: np.ndarray) -> np.ndarray:
         """The box term per axis, (n, 3), deg/s: sqrt(sum_f (slope_af d_f)^2), 0 inside the box."""
