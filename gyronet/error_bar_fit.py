@@ -178,6 +178,9 @@ def error_bar_meta(model: torch.nn.Module, data: Any) -> dict[str, Any] | None:
     """
     if CACHE_ATTR in model.__dict__ and model.__dict__[CACHE_ATTR][0] is data:
         return model.__dict__[CACHE_ATTR][1]
+    if getattr(getattr(data, "train", None), "x", None) is None:
+        log.warning("no training features to place the error bar's box on: the bundle has none (drift_sigma is NaN)")
+        return None
     x_fit = np.asarray(data.train.x, dtype=np.float64)
     if STATS_ATTR in model.__dict__:
         stats, parts = model.__dict__[STATS_ATTR], model.__dict__.get(MEMBERS_ATTR)

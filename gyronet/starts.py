@@ -142,8 +142,8 @@ def fit_every_start(model: nn.Module, data: DriftData, optim: Callable | None, o
     parts = [trials[k][2] for k in used]
     # the error bar's held-out blocks (gyronet.error_bar_fit), taken before any refit sees them; its
     # members are the validated fits: their spread is what the held-out blocks calibrate
-    time_s, x, y = data.val_full
-    stats = error_bar_fit.held_out_stats(model, parts, time_s, x, y, data.train.x)
+    val_full = getattr(data, "val_full", None)
+    stats = None if val_full is None else error_bar_fit.held_out_stats(model, parts, *val_full, data.train.x)
     validated = [copy.deepcopy(p) for p in parts] if for_bundle else parts
     if for_bundle:  # each start continued on every block, then mixed again with the same weights
         plain = {k: v for k, v in options.items() if k != "writer"}
