@@ -182,3 +182,29 @@ def test_calibrated_on_a_held_out_history(bundle, cycle_csv, tmp_path):
     assert all(0.35 <= w <= 0.98 for w in within)
     assert 0.50 <= float(np.mean(within)) <= 0.90
     assert float(np.mean(list(score["within_2_sigma"].values()))) >= 0.75
+
+
+def test_a_still_run_is_scored_against_zero_with_its_noise_and_tabled(tmp_path):
+    """score_still: the window dropped, the run's 60 s white noise allowed for; to_markdown and write_table."""
+    from gyronet.offline import write_compensated
+    from gyronet.sigma_table import score_still, to_markdown, write_table
+
+    rng = np.random.default_rng(3)
+    time_s = np.arange(0.0, 7200.0, 1.0)
+    drift = np.where(time_s < 3600, 0.01, 0.0)[:, None] * np.ones(3)  # 10 mdps for an hour, then none
+    rate = drift + rng.normal(0.0, 0.05, (len(time_s), 3))  # white: 6.5 mdps on a 60 s mean
+    columns = {"time_s": time_s, "gyro_x_dps": rate[:, 0], "gyro_y_dps": rate[:, 1], "gyro_z_dps": rate[:, 2],
+               "temp_c": np.full(len(time_s), 20.0), "out_of_range": np.zeros(len(time_s), np.int8),
+               "bad_input": np.zeros(len(time_s), np.int8)}
+    for i, name in enumerate(SIGMA_COLUMNS):
+        columns[name] = np.full(len(time_s), 0.002)
+    write_compensated(tmp_path / "still.csv", columns, tmp_path)
+    score = score_still(tmp_path / "still.csv", still_s=600.0)
+    assert score["n_blocks"] == 110  # 6600 s from 600 s on
+    # the second hour: within sqrt(2^2 + 6.5^2) mdps about 68 % of the time; the first mostly not
+    assert 0.3 < score["within_1_sigma"]["x"] < 0.65
+    row = {"kind": "real", "trained_on": "a", "held_out": "b", "score": score}
+    text = to_markdown([row])
+    assert "| a | b | 110 |" in text and "real" in text
+    out = write_table([row], tmp_path / "t.md", {"k": 1})
+    assert json.loads(out.with_suffix(".json").read_text())["rows"][0]["score"]["n_blocks"] == 110
