@@ -23,7 +23,8 @@ MODEL_FILE, META_FILE, KALMAN_FILE = "model.pt", "meta.json", "kalman.json"
 # a copy of the fields the model's numbers depend on, saved inside model.pt: an edit of meta.json
 # that would change the output (fs_hz, features) is caught and named at load time
 TRAINED_FILE = "gyronet/trained.json"
-TRAINED_FIELDS = ("input_columns", "features", "feature_names", "fs_hz", "temp_range_c", "axes", "kalman")
+TRAINED_FIELDS = ("input_columns", "features", "feature_names", "fs_hz", "temp_range_c", "axes", "kalman",
+                  "error_bar")  # error_bar: gyronet.error_bar (absent in older bundles)
 AXES = ["x", "y", "z"]
 # which gyro the training data held (optional; absent in older bundles, read as "raw"): the sensor's raw
 # rate (LP-BUS, record.py, the simulator) or the host-corrected one of an LPMS-Control log

@@ -9,6 +9,7 @@ recording or once per sample gives the same numbers.
 from __future__ import annotations
 
 import logging
+import math
 from pathlib import Path
 from typing import Any, Mapping, NamedTuple
 
@@ -17,6 +18,7 @@ import torch
 
 from gyronet.bundle_schema import KALMAN_FILE, META_FILE, check_model, validate_meta
 from gyronet.data import GYRO_COLUMNS
+from gyronet.error_bar import from_meta
 from gyronet.errors import BundleError, GyronetError
 from gyronet.export import read_bundle
 from gyronet.features import FeatureExtractor
@@ -41,6 +43,9 @@ class Compensated(NamedTuple):
     # (n,) bool: an impossible input (temperature or gyro, gyronet.guard) kept out of every filter's
     # state; None (older callers) means none
     bad_input: np.ndarray | None = None
+    # (n, 3) the 1-sigma error bar of drift_dps (gyronet.error_bar); NaN for a bundle without one,
+    # None (older callers) means not computed
+    drift_sigma_dps: np.ndarray | None = None
 
 
 class CompensatedRow(NamedTuple):
@@ -50,6 +55,7 @@ class CompensatedRow(NamedTuple):
     drift_dps: list  # 3 drift estimates
     out_of_range: bool
     bad_input: bool
+    drift_sigma_dps: list | None = None  # 3 error bars of drift_dps (NaN: the bundle has none)
 
 
 class Compensator:
@@ -70,6 +76,7 @@ class Compensator:
             self.kalman = _kalman_stage(kalman, self.bundle_fs_hz,
                                         f"{source}/{KALMAN_FILE}" if source is not None else KALMAN_FILE)
         self.input_columns = list(dict.fromkeys([*self.extractor.columns, *GYRO_COLUMNS]))
+        self.error_bar = from_meta(self.meta, f"{source}/{META_FILE}" if source is not None else META_FILE)
         self.n_out_of_range = 0
         self.n_bad_input = 0  # rows flagged ``bad_input`` since reset()
         self._last_rate_dps: np.ndarray | list | None = None  # the last output row: what a bad gyro value becomes
@@ -80,9 +87,10 @@ class Compensator:
     def load(cls, bundle_dir: str | Path) -> "Compensator":
         """Load a bundle folder (CONTRACT.md section 2); a damaged or mismatched bundle is a one-line BundleError."""
         bundle = read_bundle(bundle_dir)
-        compensator = cls(bundle.model, bundle.meta, bundle.kalman, source=bundle_dir)
-        check_model(bundle.model, bundle.facts, compensator.meta, str(bundle_dir))
-        return compensator
+        # the model against meta.json first: a mismatched model.pt is named as such, not by what follows from it
+        validate_meta(bundle.meta, f"{bundle_dir}/{META_FILE}")
+        check_model(bundle.model, bundle.facts, bundle.meta, str(bundle_dir))
+        return cls(bundle.model, bundle.meta, bundle.kalman, source=bundle_dir)
 
     def use_small_chunks(self, model: torch.nn.Module | None = None) -> bool:
         """Evaluate chunks of up to ``SMALL_ROWS`` rows in plain floats (``gyronet.small_model``), not TorchScript.
@@ -159,7 +167,18 @@ class Compensator:
 
     def drift(self, columns: Mapping[str, np.ndarray]) -> np.ndarray:
         """Drift estimate (n, 3), deg/s, advancing the feature state."""
-        features = self.extractor.process(columns)
+        return self._drift_of(self.extractor.process(columns))
+
+    def drift_sigma(self, features: np.ndarray) -> np.ndarray:
+        """The 1-sigma error bar (n, 3), deg/s, of the drift at these features (NaN without an error bar)."""
+        if self.error_bar is None:
+            return np.full((len(features), 3), np.nan)
+        if self._row_model is not None and len(features) <= SMALL_ROWS:
+            return np.array([self.error_bar.sigma_row(row) for row in features.tolist()],
+                            dtype=np.float64).reshape(-1, 3)
+        return self.error_bar.sigma(features)
+
+    def _drift_of(self, features: np.ndarray) -> np.ndarray:
         if self._row_model is not None and len(features) <= SMALL_ROWS:
             return np.array([self._row_model(row) for row in features.tolist()], dtype=np.float64).reshape(-1, 3)
         features = torch.from_numpy(features)
@@ -176,7 +195,9 @@ class Compensator:
         axis's last output before the Kalman stage, so it never enters the filter's state. Both are
         flagged in ``bad_input`` and counted in ``n_bad_input``.
         """
-        drift_dps = self.drift(columns)
+        features = self.extractor.process(columns)
+        drift_dps = self._drift_of(features)
+        sigma_dps = self.drift_sigma(features)
         gyro_dps = np.column_stack([np.asarray(columns[c], dtype=np.float64) for c in GYRO_COLUMNS])
         bad_input = self.extractor.rejected
         residual_dps = gyro_dps - drift_dps
@@ -195,7 +216,7 @@ class Compensator:
         out_of_range = self._outside(np.asarray(columns["temp_c"], dtype=np.float64))
         self.n_out_of_range += int(out_of_range.sum())
         self.n_bad_input += int(np.count_nonzero(bad_input))
-        return Compensated(rate_dps, drift_dps, out_of_range, bad_input)
+        return Compensated(rate_dps, drift_dps, out_of_range, bad_input, sigma_dps)
 
     def process_row(self, time_s: float, values: Mapping[str, float]) -> CompensatedRow | None:
         """``process`` on one sample in plain floats (``values``: every input column but ``time_s``), the live
@@ -209,6 +230,7 @@ class Compensator:
             return None
         features, rejected = self.extractor.process_row(time_s, values)
         drift_dps = self._row_model(features)
+        sigma_dps = [math.nan] * 3 if self.error_bar is None else self.error_bar.sigma_row(features)
         rate_dps = [g - d for g, d in zip(gyro_dps, drift_dps)]
         if self.startup is not None:
             rate_dps = [r - o for r, o in zip(rate_dps, self.startup.offset_dps.tolist())]
@@ -218,7 +240,7 @@ class Compensator:
         out_of_range = self._outside(values["temp_c"])
         self.n_out_of_range += out_of_range
         self.n_bad_input += rejected
-        return CompensatedRow(rate_dps, drift_dps, out_of_range, rejected)
+        return CompensatedRow(rate_dps, drift_dps, out_of_range, rejected, sigma_dps)
 
     def _outside(self, temp_c):
         """Outside the trained temperatures (an array or a float; NaN is not outside: it is bad input)."""

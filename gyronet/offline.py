@@ -17,13 +17,16 @@ log = logging.getLogger(__name__)
 
 # 13 digits: half a unit of the 13th is at most 5e-13 of the value, inside the 1e-12 round trip
 SIGNIFICANT_DIGITS = 13
+SIGMA_COLUMNS = [f"drift_sigma_{a}_dps" for a in AXES]  # CONTRACT.md section 3
 
 
 def output_columns(time_s: np.ndarray, temp_c: np.ndarray, out: Compensated) -> dict[str, np.ndarray]:
     """The columns of a compensated file, shared by the offline and live writers.
 
     ``bad_input`` (int8) marks rows whose temperature or gyro reading was impossible (a glitch kept
-    out of the filters); ``out_of_range`` those outside the trained temperature range.
+    out of the filters); ``out_of_range`` those outside the trained temperature range;
+    ``drift_sigma_*_dps`` is the 1-sigma error bar of the removed drift (``gyronet.error_bar``; NaN
+    for a bundle without one).
     """
     columns = {"time_s": time_s}
     for i, name in enumerate(GYRO_COLUMNS):
@@ -32,6 +35,9 @@ def output_columns(time_s: np.ndarray, temp_c: np.ndarray, out: Compensated) -> 
     columns["out_of_range"] = out.out_of_range.astype(np.int8)
     bad_input = np.zeros(len(time_s), dtype=bool) if out.bad_input is None else out.bad_input
     columns["bad_input"] = bad_input.astype(np.int8)
+    sigma = np.full((len(time_s), 3), np.nan) if out.drift_sigma_dps is None else out.drift_sigma_dps
+    for i, name in enumerate(SIGMA_COLUMNS):
+        columns[name] = sigma[:, i]
     return columns
 
 

@@ -58,6 +58,11 @@ def _meta(model: torch.nn.Module, data: DriftData) -> dict[str, Any]:
     source = gyro_source_of([r.recording.meta for r in runs] or [data.recording.meta])
     if source is not None:  # issue 13: raw (LP-BUS) or host-corrected (an LPMS-Control log) gyro
         meta["gyro_source"] = source
+    from gyronet.error_bar_fit import error_bar_meta
+
+    bar = error_bar_meta(model, data)
+    if bar is not None:
+        meta["error_bar"] = bar
     return meta
 
 
@@ -156,6 +161,11 @@ def _eval_metrics(result: Mapping[str, Any], prefix: str) -> dict[str, float]:
         for axis in AXES:
             metrics[f"{prefix}/residual_{axis}_dps"] = result["truth"]["residual_dps"][axis]
             metrics[f"{prefix}/ratio_to_floor_{axis}"] = result["truth"]["ratio_to_floor"][axis]
+    for key, values in result.get("error_bar", {}).items():  # eval/median_sigma_x_dps, eval/within_1_sigma_x
+        if isinstance(values, dict):
+            name = key.replace("_dps", "")
+            metrics.update({f"{prefix}/{name}_{axis}{'_dps' if key.endswith('_dps') else ''}": v
+                            for axis, v in values.items()})
     return metrics
 
 
@@ -172,6 +182,8 @@ def _log_run(writer: Any, metrics: Mapping[str, float], evaluations: Mapping[str
             {stage: result["allan"][stage] for stage in result["allan"]}, title=f"Allan deviation: {name}"))
         tb.log_figure(writer, f"eval/{name}/raw_vs_compensated", plots.raw_vs_compensated(arrays))
         tb.log_figure(writer, f"eval/{name}/residual_vs_temperature", plots.residual_vs_temperature(arrays))
+        if "error_bar" in result:  # the sigma band: is the error bar honest on this record?
+            tb.log_figure(writer, f"eval/{name}/drift_sigma", plots.drift_sigma_band(arrays))
     tb.log_hparams(writer, hparams, {k: v for k, v in metrics.items() if k.startswith("val/") and np.isfinite(v)})
     writer.flush()
 

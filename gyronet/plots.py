@@ -57,3 +57,30 @@ def residual_vs_temperature(arrays: Mapping[str, np.ndarray], block_s: float = 6
     fig.suptitle(title or f"residual vs temperature ({block_s:g} s means)")
     fig.tight_layout()
     return fig
+
+
+def drift_sigma_band(arrays: Mapping[str, np.ndarray], block_s: float = 60.0, title: str = "") -> plt.Figure:
+    """Per axis, the removed drift's error with its +-1 sigma band (60 s means): is the error bar honest?
+
+    With ground truth the error is drift estimate minus true drift; without (a still run), the
+    compensated rate minus its mean. The band is the bundle's ``drift_sigma`` (``gyronet.error_bar``).
+    """
+    time_s = arrays["time_s"]
+    hours = block_means(time_s, time_s, block_s) / 3600.0
+    if "drift_true_dps" in arrays:
+        error, label = arrays["drift_hat_dps"] - arrays["drift_true_dps"], "drift error, deg/s"
+    else:
+        error, label = arrays["compensated_dps"] - arrays["compensated_dps"].mean(0), "compensated - mean, deg/s"
+    sigma = arrays["drift_sigma_dps"]
+    fig, axes = plt.subplots(3, 1, figsize=(9, 7), sharex=True)
+    for i, axis in enumerate(AXES):
+        band = block_means(sigma[:, i], time_s, block_s)
+        axes[i].fill_between(hours, -band, band, color="tab:orange", alpha=0.3, lw=0, label="+-1 sigma")
+        axes[i].plot(hours, block_means(error[:, i], time_s, block_s), lw=1, label=label)
+        axes[i].set_ylabel(f"{axis}, deg/s")
+        axes[i].grid(alpha=0.3)
+    axes[0].legend(loc="best")
+    axes[2].set_xlabel("time, h")
+    fig.suptitle(title or f"removed drift's error and its 1-sigma error bar ({block_s:g} s means)")
+    fig.tight_layout()
+    return fig

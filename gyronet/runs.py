@@ -236,13 +236,16 @@ def fit_by_run(model: nn.Module, data: RunsData, optim: Callable | None = None, 
     from gyronet.dataset import block_rmse
 
     untrained = copy.deepcopy(model)
-    folds, best_steps = [], []
+    from gyronet import error_bar_fit
+
+    folds, best_steps, fold_stats = [], [], []  # fold_stats: each held-out run's blocks, for the error bar
     for run in data.runs:
         fold_data = data.holding_out(run.index)
         fold_model = copy.deepcopy(untrained)
         metrics = fit(fold_model, fold_data, optim, seed=seed, **fit_kwargs)
         time_s, x, y = fold_data.val_full
         residual = y - predict(fold_model, x)
+        fold_stats.append(error_bar_fit.held_out_stats(fold_model, None, time_s, x, y, fold_data.train.x))
         low, high = fold_data.temp_range_c
         temp = run.recording.temp_c
         folds.append({"held_out": run.name, "path": run.path,
@@ -257,6 +260,7 @@ def fit_by_run(model: nn.Module, data: RunsData, optim: Callable | None = None, 
                  ", ".join(f"{a}={metrics[f'val/rmse_{a}_dps']:.4g}" for a in "xyz"))
     steps = int(np.median(best_steps)) if best_steps else None
     final = fit(model, data, optim, seed=seed, writer=writer, stop_at_step=steps, **fit_kwargs)
+    error_bar_fit.attach(model, error_bar_fit.merge_stats(fold_stats))
     out = {"train/loss": final["train/loss"]}
     for key in [f"val/rmse_{a}_dps" for a in "xyz"] + ["val/rmse_dps"]:
         out[key] = float(np.mean([f[key] for f in folds]))

@@ -30,6 +30,7 @@ import numpy as np
 import torch
 from torch import nn
 
+from gyronet import error_bar_fit
 from gyronet.data import AXES
 from gyronet.dataset import DriftData, residual_block_means
 
@@ -173,6 +174,12 @@ def fit_every_start(model: nn.Module, data: DriftData, optim: Callable | None, o
                  ", ".join(f"{i} {f['val/rmse_dps']:.4g}" for f, i, _, _ in trials),
                  ", ".join(f"{i} " + "/".join(f"{w:.2f}" for w in row) for (_, i, _, _), row in zip(trials, weights)),
                  final["val/rmse_dps"])
+    parts = [trials[k][2] for k in used]
+    # the error bar's held-out blocks (gyronet.error_bar_fit), taken before any refit sees them; its
+    # members are the validated fits: their spread is what the held-out blocks calibrate
+    val_full = getattr(data, "val_full", None)
+    stats = None if val_full is None else error_bar_fit.held_out_stats(model, parts, *val_full, data.train.x)
+    validated = [copy.deepcopy(p) for p in parts] if for_bundle else parts
     if for_bundle:  # each start continued on every block, then mixed again with the same weights
         plain = {k: v for k, v in options.items() if k != "writer"}
         for k in used:
@@ -181,7 +188,8 @@ def fit_every_start(model: nn.Module, data: DriftData, optim: Callable | None, o
                 _continue_on_every_block(member, data, metrics, optim, plain)
             if len(members) > 1:
                 _average_into(start, [m for _, m in members])
-        mix_into(model, [trials[k][2] for k in used], weights[used])
+        mix_into(model, parts, weights[used])
+    error_bar_fit.attach(model, stats, validated)
     weight_of = dict(zip((i for _, i, _, _ in trials), weights))
     final.update({f"model/{init}_weight_{axis}": float(weight_of[init][a]) if init in weight_of else 0.0
                   for init in CENTER_INITS for a, axis in enumerate(AXES)})

@@ -97,6 +97,9 @@ def fit(model: torch.nn.Module, data: DriftData, optim: Callable | None = None, 
     if threads:
         torch.set_num_threads(threads)
     torch.manual_seed(seed)
+    from gyronet.error_bar_fit import detach
+
+    detach(model)  # a new fit: the error bar's statistics of an earlier one no longer apply
     x = torch.as_tensor(data.train.x, dtype=torch.float64)
     y = torch.as_tensor(data.train.y, dtype=torch.float64)
     offsets = getattr(data, "offsets", None)  # gyronet.runs.RunOffsets: one constant per training run and axis
@@ -173,6 +176,11 @@ def fit(model: torch.nn.Module, data: DriftData, optim: Callable | None = None, 
     final = {"train/loss": best["train/loss"], "train/steps": step + 1, "train/best_step": best["train/best_step"],
              **validation_metrics(model, data), **chosen}
     _check_finite(final, "the trained model")
+    if for_bundle and getattr(model, "refit_all", False) and _every_block(data) is not None:
+        from gyronet import error_bar_fit  # the error bar's held-out blocks, before the refit sees them
+
+        time_s, vx, vy = data.val_full
+        error_bar_fit.attach(model, error_bar_fit.held_out_stats(model, None, time_s, vx, vy, data.train.x))
     if for_bundle:
         _continue_on_every_block(model, data, final, optim, dict(
             max_epochs=max_epochs, patience=patience, eval_every=eval_every, seed=seed, weight_decay=weight_decay,
@@ -272,12 +280,16 @@ def evaluate(compensator: Any, recording: Any, truth: Mapping[str, np.ndarray] |
                   "compensated": _allan_summary(allan_report(recording.time_s, out.rate_dps))},
     }
     arrays = {"time_s": recording.time_s, "temp_c": recording.temp_c, "raw_dps": raw,
-              "compensated_dps": out.rate_dps, "drift_hat_dps": out.drift_dps}
+              "compensated_dps": out.rate_dps, "drift_hat_dps": out.drift_dps, "drift_sigma_dps": out.drift_sigma_dps}
     if truth is not None:
         report["truth"] = residual_report(recording.time_s, out.rate_dps, truth, block_s)
         noise = np.column_stack([truth[f"noise_{a}_dps"] for a in AXES])
         report["allan"]["noise_only"] = _allan_summary(allan_report(recording.time_s, noise))
         arrays["drift_true_dps"] = np.column_stack([truth[f"drift_{a}_dps"] for a in AXES])
+    if out.drift_sigma_dps is not None and np.isfinite(out.drift_sigma_dps).all():
+        from gyronet.sigma_table import error_bar_summary
+
+        report["error_bar"] = error_bar_summary(recording.time_s, out, arrays.get("drift_true_dps"), block_s)
     report["_arrays"] = arrays
     return report
 

@@ -1,18 +1,22 @@
 """Allan analysis of a recording or a ROS bag: python scripts/allan.py input=F.csv|B.bag|BAG_FOLDER output=A.json.
 
-Writes A.json (CONTRACT.md section 3: per axis ``taus_s``, ``adev_dps``, N, B, K) and A.png. A bag
+Writes A.json (CONTRACT.md section 3: per axis ``taus_s``, ``adev_dps``, N, B, K; for a compensated file with
+``drift_sigma_*_dps`` columns also the error bar's median, 95 % and maximum) and A.png. A bag
 is read in memory (its sensor_msgs/Imu topic, ``rosbag.imu_topic``); it needs no temperature.
 """
 import logging
 import sys
 from pathlib import Path
 
+import numpy as np
 from omegaconf import DictConfig, OmegaConf
 
 from gyronet.allan import allan_report, format_table, plot_allan, report_to_json
 from gyronet.data import ALLAN_COLUMNS, load_recording
 from gyronet.errors import GyronetError
 from gyronet.importers.rosbag import is_rosbag, read_rates
+from gyronet.offline import SIGMA_COLUMNS
+from gyronet.sigma_table import allan_sigma_summary
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # scripts/_cli.py, also when this file is run by path
 from _cli import command  # noqa: E402
@@ -29,6 +33,12 @@ def main(cfg: DictConfig) -> None:
     else:
         recording = load_recording(cfg.input, required=ALLAN_COLUMNS)
     report = allan_report(recording.time_s, recording.gyro_dps, per_decade=int(cfg.per_decade))
+    if all(c in recording.columns for c in SIGMA_COLUMNS):  # a compensated file: its error bar beside N, B, K
+        sigma = np.column_stack([recording.columns[c] for c in SIGMA_COLUMNS])
+        for axis, values in allan_sigma_summary(sigma).items():
+            report[axis].update(values)
+            log.info("%s: drift sigma median %.4g deg/s (95 %% %.4g, max %.4g)", axis, values["drift_sigma_median_dps"],
+                     values["drift_sigma_p95_dps"], values["drift_sigma_max_dps"])
     output = Path(cfg.output)
     output.parent.mkdir(parents=True, exist_ok=True)
     output.write_text(report_to_json(report), encoding="utf-8")

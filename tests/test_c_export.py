@@ -28,15 +28,26 @@ AUX = "vdd_v"
 pytestmark = pytest.mark.skipif(CC is None, reason="no C compiler (cc or gcc) on this machine")
 
 
-def _train(out: Path, csv: Path, model_factory, features=None, kalman=None) -> Path:
+def _train(out: Path, csv: Path, model_factory, features=None, kalman=None, for_bundle=False) -> Path:
     from gyronet.dataset import DriftData
     from gyronet.pipeline import train_run
 
     data = DriftData(str(csv)) if features is None else DriftData(str(csv), features=features)
     kalman_cfg = None if kalman is None else {"enabled": True, **kalman}
-    train_run(data, model_factory(data.n_features), None, out, {"max_epochs": 30, "progress": False},
-              kalman_cfg=kalman_cfg)
+    train_run(data, model_factory(data.n_features), None, out,
+              {"max_epochs": 30, "progress": False, "for_bundle": for_bundle}, kalman_cfg=kalman_cfg)
     return out / "compensator"
+
+
+def _train_members(out: Path, csv: Path) -> Path:
+    """The default's three starts, each kept (equal weights): an error bar with members in the bundle."""
+    from gyronet import starts
+    from gyronet.model import RBFNet
+
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(starts, "stack_weights", lambda *residuals: np.full((len(residuals), 3), 1.0 / len(residuals)))
+        return _train(out, csv, lambda n: RBFNet(n, 3, 6, rbf_inputs=[0], linear=True, temp_degree=3, clamp=True,
+                                                 refit_all=True, validate_init=True), for_bundle=True)
 
 
 @pytest.fixture(scope="module")
@@ -73,6 +84,7 @@ def bundles(tmp_path_factory, bundle, paper_csv, aux_csv) -> dict:
         "poly3": _train(root / "poly3", paper_csv, lambda n: TempPolynomial(n, 3, 3)),
         "lsq": _train(root / "lsq", paper_csv, lambda n: LinearFeatures(n, 3)),
         "aux": _train(root / "aux", aux_csv, default, features=every_kind),
+        "members": _train_members(root / "members", paper_csv),
     }
 
 
@@ -134,9 +146,17 @@ def _check(c_out: np.ndarray, py) -> None:
     assert np.all(np.isfinite(c_out[:, :3]))
     print(f"max |C - Python| {error.max():.3g} deg/s")
     assert error.max() < TOL_DPS, f"max |C - Python| {error.max():.3g} deg/s at row {error.max(1).argmax()}"
+    # the error bar (s->drift_sigma_dps): float32 against float64, relative to its size; NaN in both
+    # for a bundle without one (written by hand here, or before gyronet had them)
+    assert py.drift_sigma_dps is not None
+    if np.isnan(py.drift_sigma_dps).all():
+        assert np.isnan(c_out[:, 4:7]).all()
+    else:
+        assert np.isfinite(py.drift_sigma_dps).all()
+        np.testing.assert_allclose(c_out[:, 4:7], py.drift_sigma_dps, rtol=1e-4, atol=1e-6)
 
 
-@pytest.mark.parametrize("kind", ["default", "kalman", "kalman_rate", "paper_rbf", "poly3", "lsq", "aux"])
+@pytest.mark.parametrize("kind", ["default", "kalman", "kalman_rate", "paper_rbf", "poly3", "lsq", "aux", "members"])
 def test_c_matches_compensator_on_a_hard_recording(kind, bundles, paper_csv, aux_csv, tmp_path):
     exe, summary = _build(bundles[kind], tmp_path)
     columns = _hard(_columns(aux_csv if kind == "aux" else paper_csv))
@@ -145,6 +165,11 @@ def test_c_matches_compensator_on_a_hard_recording(kind, bundles, paper_csv, aux
     _check(_run_c(exe, columns, summary["aux_inputs"], tmp_path), py)
     print(kind, summary)
     assert summary["kalman"] == kind.startswith("kalman") and summary["aux_inputs"] == ([AUX] if kind == "aux" else [])
+    assert summary["error_bar"]
+    if kind == "members":  # the spread's code path: every start kept as a member
+        import json
+
+        assert json.loads((bundles[kind] / "meta.json").read_text())["error_bar"]["n_members"] == 3
 
 
 def test_c_matches_compensate_py_with_a_startup_offset(bundles, paper_csv, tmp_path):
@@ -169,7 +194,7 @@ def test_c_matches_compensate_py_with_a_startup_offset(bundles, paper_csv, tmp_p
 
 
 def test_state_size_and_symbols(bundles, tmp_path):
-    """sizeof(gyronet_state) is the size write_c reports; the object needs no heap and no libm but expf/fabsf."""
+    """sizeof(gyronet_state) is the size write_c reports; the object needs no heap and no libm but expf/fabsf/sqrtf."""
     exe, summary = _build(bundles["kalman"], tmp_path)
     probe = tmp_path / "size.c"
     probe.write_text('#include <stdio.h>\n#include "gyronet_compensator.h"\n'
@@ -181,7 +206,7 @@ def test_state_size_and_symbols(bundles, tmp_path):
     if nm:
         undefined = subprocess.run([nm, "-u", str(tmp_path / "gyronet_compensator.o")], capture_output=True,
                                    text=True, check=True).stdout.split()
-        assert set(undefined) - {"U"} <= {"expf", "fabsf", "memcpy", "memset"}
+        assert set(undefined) - {"U"} <= {"expf", "fabsf", "sqrtf", "memcpy", "memset"}
 
 
 def test_unknown_model_class_is_one_line(bundle, tmp_path):

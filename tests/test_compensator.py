@@ -7,7 +7,7 @@ from gyronet.data import GYRO_COLUMNS, block_means, load_recording, load_truth
 from gyronet.dataset import block_rmse
 from gyronet.guard import GYRO_RANGE_DPS
 from gyronet.kalman import AxisModel, KalmanModel, KalmanStage
-from gyronet.offline import compensate_recording, output_columns
+from gyronet.offline import SIGMA_COLUMNS, compensate_recording, output_columns
 
 TRUE_RATE = [f"true_rate_{axis}_dps" for axis in "xyz"]
 
@@ -116,7 +116,7 @@ def test_output_columns_carry_the_bad_input_flag_and_old_tuples_still_work():
     assert flagged["bad_input"].dtype == np.int8 and flagged["bad_input"].tolist() == [0, 1, 0]
     old = output_columns(np.arange(3.0), np.full(3, 25.0), Compensated(rate, rate, np.zeros(3, bool)))
     assert old["bad_input"].tolist() == [0, 0, 0]
-    assert list(old) == ["time_s", *GYRO_COLUMNS, "temp_c", "out_of_range", "bad_input"]
+    assert list(old) == ["time_s", *GYRO_COLUMNS, "temp_c", "out_of_range", "bad_input", *SIGMA_COLUMNS]
 
 
 def test_the_default_bundle_holds_its_edge_value_at_a_steady_temperature(bundle):

@@ -195,7 +195,7 @@ def test_a_chunk_cut_by_a_full_disk_keeps_its_complete_lines(bundle, tmp_path, m
     writer = LiveWriter(tmp_path / "live.csv", bundle)
     n = 10
     out = Compensated(np.full((n, 3), 0.125), np.zeros((n, 3)), np.zeros(n, dtype=bool), np.zeros(n, dtype=bool))
-    line_bytes = len("0.0,0.125,0.125,0.125,25.0,0,0\n")
+    line_bytes = len("0.0,0.125,0.125,0.125,25.0,0,0,nan,nan,nan\n")
     real_write, room = os.write, [int(3.5 * line_bytes)]
 
     def full_disk(fd, data):
@@ -211,7 +211,7 @@ def test_a_chunk_cut_by_a_full_disk_keeps_its_complete_lines(bundle, tmp_path, m
     monkeypatch.undo()
     text = (tmp_path / "live.csv").read_text()
     assert text.endswith("\n") and writer.n_rows == 3
-    assert text.splitlines()[2:] == ["0.0,0.125,0.125,0.125,25.0,0,0"] * 3
+    assert text.splitlines()[2:] == ["0.0,0.125,0.125,0.125,25.0,0,0,nan,nan,nan"] * 3
 
 
 def test_rows_in_floats_are_the_lines_write_makes_for_them(tmp_path):
@@ -223,9 +223,17 @@ def test_rows_in_floats_are_the_lines_write_makes_for_them(tmp_path):
     rate = [[0.1 + 1e-17, -2.5e-7, 1234.000000001], [float("nan"), 0.0, -0.0], [float("inf"), -float("inf"), 5e-324]]
     flags = [[True, False, False], [False, True, True]]
     one, many = LiveWriter(tmp_path / "one.csv", tmp_path), LiveWriter(tmp_path / "many.csv", tmp_path)
-    one.write_rows([(time_s[k], rate[k], temp_c[k], flags[0][k], flags[1][k]) for k in range(3)])
+    sigma = [[1e-3 + 1e-19, 2.5e-4, 0.25], [0.0, float("nan"), 7.0], [1e-300, 3.0, 4.0]]
+    one.write_rows([(time_s[k], rate[k], temp_c[k], flags[0][k], flags[1][k], sigma[k]) for k in range(3)])
     many.write(np.array(time_s), np.array(temp_c),
-               Compensated(np.array(rate), np.zeros((2, 3)), np.array(flags[0]), np.array(flags[1])))
+               Compensated(np.array(rate), np.zeros((2, 3)), np.array(flags[0]), np.array(flags[1]), np.array(sigma)))
     one.close(), many.close()
     assert (tmp_path / "one.csv").read_bytes() == (tmp_path / "many.csv").read_bytes()
     assert one.n_rows == many.n_rows == 3
+    # the older 5-tuple (no sigmas) still writes, NaN where the sigmas go, as write does without them
+    old, arrays = LiveWriter(tmp_path / "old.csv", tmp_path), LiveWriter(tmp_path / "arrays.csv", tmp_path)
+    old.write_rows([(time_s[k], rate[k], temp_c[k], flags[0][k], flags[1][k]) for k in range(3)])
+    arrays.write(np.array(time_s), np.array(temp_c),
+                 Compensated(np.array(rate), np.zeros((2, 3)), np.array(flags[0]), np.array(flags[1])))
+    old.close(), arrays.close()
+    assert (tmp_path / "old.csv").read_bytes() == (tmp_path / "arrays.csv").read_bytes()

@@ -19,6 +19,7 @@ import pytest
 
 from gyronet.compensator import Compensator
 from gyronet.data import GYRO_COLUMNS, block_means, load_recording, load_truth, write_recording
+from gyronet.offline import SIGMA_COLUMNS
 from gyronet.stream import LpBusLayout
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -197,7 +198,7 @@ def test_run_stream_stops_on_max_samples_and_ctrl_c(bundle, tmp_path, monkeypatc
     assert summary["faults"] == {"garbage": 1}
     rows = read_output(tmp_path / "live.csv")
     assert len(rows) == summary["n_samples"] == (5 if how == "max_samples" else 20)
-    assert list(rows.columns) == ["time_s", *GYRO_COLUMNS, "temp_c", "out_of_range", "bad_input"]
+    assert list(rows.columns) == ["time_s", *GYRO_COLUMNS, "temp_c", "out_of_range", "bad_input", *SIGMA_COLUMNS]
 
 
 # --- issue 10: restarted clocks, re-sent headers, signals, missing ports, a full disk ---------

@@ -17,6 +17,7 @@ from typing import Any
 from gyronet.atomic import atomic_output
 from gyronet.bundle_schema import MODEL_FILE
 from gyronet.deploy.c import HERE, c_float
+from gyronet.deploy.c._error_bar import error_bar_code
 from gyronet.deploy.c._features import aux_inputs, feature_code
 from gyronet.deploy.c._kalman import kalman_code, no_kalman
 from gyronet.deploy.c._model import model_code
@@ -46,6 +47,7 @@ _STATE = [
     ("float", "offset_dps", 3, "subtracted before the Kalman stage"),
     ("float", "static_rate_dps", 3, ""),
     ("float", "last_out_dps", 3, "what a bad gyro axis becomes"),
+    ("float", "drift_sigma_dps", 3, "the last sample's 1-sigma error bar of the removed drift (NaN: none)"),
     ("float", "kalman_x", "n_kalman", "Kalman state, the axes side by side"),
     ("float", "kalman_p", "n_kalman_p", "its covariance blocks, during the gain transient"),
     ("uint32_t", "kalman_n", 1, "samples filtered, up to the end of the gain transient"),
@@ -102,6 +104,7 @@ def write_c(bundle_dir: Path, out_dir: Path) -> dict[str, Any]:
     module = load_unfrozen(bundle_dir)
     centre, scale = _probe_box(module, meta)
     model = model_code(module, scale, centre, model_path)
+    bar = error_bar_code(compensator.error_bar, len(specs), f"{bundle_dir}/meta.json")
     kalman = no_kalman() if compensator.kalman is None else kalman_code(compensator.kalman.to_dict(),
                                                                          f"{bundle_dir}/kalman.json")
     fields, state_bytes = _state({"n_features": len(specs), "n_filter": feats.n_filter, "n_play": feats.n_play,
@@ -117,11 +120,17 @@ def write_c(bundle_dir: Path, out_dir: Path) -> dict[str, Any]:
         "STATE_FIELDS": fields, "AUX_PARAM": aux_param, "N_FEATURES": str(len(specs)),
         "GAP_S": repr(GAP_FACTOR * (1.0 / fs_hz)),  # as FeatureExtractor computes it, to the last bit
         "AUX_COPY": "\n".join(f"    v[{k + 1}] = aux[{k}];" for k in range(len(aux))),
-        "CONSTANTS": "\n".join(part for part in (feats.constants, model.constants, kalman.constants) if part),
+        "CONSTANTS": "\n".join(part for part in (feats.constants, model.constants, bar.constants, kalman.constants)
+                               if part),
+        "HAS_ERROR_BAR": str(int(compensator.error_bar is not None)),
+        "ERROR_BAR_MEMBERS": "" if not bar.members_body else (
+            "/* the error bar's members: every start's drift side by side */\n"
+            "static void members_drift(const float *x, float *members)\n{\n" + bar.members_body + "\n}\n"),
+        "ERROR_BAR_BODY": bar.body,
         "FEATURES_ACCEPTED": feats.accepted, "FEATURES_POWER_ON": feats.power_on, "TIME_FEATURES": feats.time,
         "MODEL_BODY": model.body, "KALMAN_BODY": kalman.body,
     }
-    code = "\n".join([feats.accepted, feats.power_on, model.body])
+    code = "\n".join([feats.accepted, feats.power_on, model.body, bar.members_body])
     values["USES"] = "\n".join(f"#define USES_{name} {int(call in code)}" for name, call in _HELPERS.items())
     out_dir.mkdir(parents=True, exist_ok=True)
     written = []
@@ -132,7 +141,8 @@ def write_c(bundle_dir: Path, out_dir: Path) -> dict[str, Any]:
         written.append(str(out_dir / name))
     summary = {"files": written, "kind": model.kind, "state_bytes": state_bytes, "aux_inputs": aux,
                "kalman": compensator.kalman is not None, "kalman_transient_samples": kalman.n_transient,
-               "model_numbers": model.n_numbers, "features": list(meta["feature_names"])}
+               "model_numbers": model.n_numbers, "error_bar_numbers": bar.n_numbers,
+               "error_bar": compensator.error_bar is not None, "features": list(meta["feature_names"])}
     log.info("C compensator (%s, state %d bytes) written to %s", model.kind, state_bytes, out_dir)
     return summary
 

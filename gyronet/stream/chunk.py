@@ -155,7 +155,7 @@ class ChunkWriter:
             if row is None:
                 break
             temp_c = sample.values["temp_c"]
-            rows.append((sample.time_s, row.rate_dps, temp_c, row.out_of_range, row.bad_input))
+            rows.append((sample.time_s, row.rate_dps, temp_c, row.out_of_range, row.bad_input, row.drift_sigma_dps))
             if row.out_of_range:
                 self._out_of_range([temp_c], [sample.time_s])
         if rows:

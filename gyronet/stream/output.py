@@ -23,7 +23,8 @@ log = logging.getLogger(__name__)
 
 
 # one output line from floats, in output_names() order (a test checks it against write's)
-_ROW = b"%r,%r,%r,%r,%r,%d,%d\n"
+_ROW = b"%r,%r,%r,%r,%r,%d,%d,%r,%r,%r\n"
+_NO_SIGMA = (float("nan"),) * 3
 
 
 def output_names() -> list[str]:
@@ -65,11 +66,13 @@ class LiveWriter:
         values = zip(*(columns[name].tolist() for name in self.names))
         self._write(((line * n) % tuple(itertools.chain.from_iterable(values))).encode("ascii"), n)
 
-    def write_rows(self, rows: list[tuple[float, list, float, bool, bool]]) -> None:
-        """A few compensated samples in plain floats, each (time_s, 3 rates, temp_c, out_of_range, bad_input):
-        the lines ``write`` makes for them, in one ``os.write``."""
-        self._write(b"".join([_ROW % (float(t), float(x), float(y), float(z), float(temp_c), out_of_range, bad_input)
-                              for t, (x, y, z), temp_c, out_of_range, bad_input in rows]), len(rows))
+    def write_rows(self, rows: list[tuple]) -> None:
+        """A few compensated samples in plain floats, each (time_s, 3 rates, temp_c, out_of_range, bad_input,
+        3 drift sigmas): the lines ``write`` makes for them, in one ``os.write``. A row without the sigmas
+        (the older 5-tuple, or None for them) writes NaN there, as ``write`` does."""
+        self._write(b"".join([_ROW % (float(t), float(x), float(y), float(z), float(temp_c), out_of_range, bad_input,
+                                      *(_NO_SIGMA if not sigma or sigma[0] is None else map(float, sigma[0])))
+                              for t, (x, y, z), temp_c, out_of_range, bad_input, *sigma in rows]), len(rows))
 
     def _write(self, data: bytes, n_rows: int) -> None:
         if self._fd is None:

@@ -72,42 +72,45 @@ def _rbf(module: Any) -> tuple[dict[str, Any], Callable[[np.ndarray], np.ndarray
     return p, reference
 
 
-def _rbf_c(p: dict[str, Any]) -> tuple[str, str]:
+def _rbf_c(p: dict[str, Any], prefix: str = "M_", n_out: int = 3, out: str = "drift") -> tuple[str, str]:
+    """Constants and body of ``p``'s forward into ``out[0..n_out)``, its constants named ``prefix*``
+    (the error bar's members network is one more RBFNet, ``gyronet.deploy.c._error_bar``)."""
     n_in, (n_c, n_r) = len(p["mean"]), p["centers"].shape
-    constants = [f"static const float M_MEAN[{n_in}] = {c_array(p['mean'])};",
-                 f"static const float M_INV_STD[{n_in}] = {c_array(p['inv_std'])};",
-                 f"static const unsigned char M_RBF_INDEX[{n_r}] = {{{', '.join(map(str, p['index']))}}};",
-                 f"static const float M_CENTERS[{n_c}][{n_r}] = {c_array(p['centers'])};",
-                 f"static const float M_NEG_HALF_INV_W2[{n_c}] = {c_array(p['neg_half_inv_w2'])};",
-                 f"static const float M_HEAD[3][{n_c}] = {c_array(p['head'])};",
-                 f"static const float M_BIAS[3] = {c_array(p['bias'])};"]
+    m = prefix
+    constants = [f"static const float {m}MEAN[{n_in}] = {c_array(p['mean'])};",
+                 f"static const float {m}INV_STD[{n_in}] = {c_array(p['inv_std'])};",
+                 f"static const unsigned char {m}RBF_INDEX[{n_r}] = {{{', '.join(map(str, p['index']))}}};",
+                 f"static const float {m}CENTERS[{n_c}][{n_r}] = {c_array(p['centers'])};",
+                 f"static const float {m}NEG_HALF_INV_W2[{n_c}] = {c_array(p['neg_half_inv_w2'])};",
+                 f"static const float {m}HEAD[{n_out}][{n_c}] = {c_array(p['head'])};",
+                 f"static const float {m}BIAS[{n_out}] = {c_array(p['bias'])};"]
     body = [f"    float z[{n_in}], zc[{n_in}], r, sq, phi;", "    int i, j, k, a;",
-            f"    for (i = 0; i < {n_in}; ++i) {{", "        z[i] = (x[i] - M_MEAN[i]) * M_INV_STD[i];"]
+            f"    for (i = 0; i < {n_in}; ++i) {{", f"        z[i] = (x[i] - {m}MEAN[i]) * {m}INV_STD[i];"]
     if p["clamp"]:
-        constants += [f"static const float M_Z_LOW[{n_in}] = {c_array(p['low'])};",
-                      f"static const float M_Z_HIGH[{n_in}] = {c_array(p['high'])};"]
-        body += ["        zc[i] = clampf(z[i], M_Z_LOW[i], M_Z_HIGH[i]);", "    }",
+        constants += [f"static const float {m}Z_LOW[{n_in}] = {c_array(p['low'])};",
+                      f"static const float {m}Z_HIGH[{n_in}] = {c_array(p['high'])};"]
+        body += [f"        zc[i] = clampf(z[i], {m}Z_LOW[i], {m}Z_HIGH[i]);", "    }",
                  "    /* the linear term sees temperature clamped, the other inputs as they are */",
                  f"    z[{p['t']}] = zc[{p['t']}];"]
     else:
         body += ["        zc[i] = z[i];", "    }"]
-    body += ["    for (a = 0; a < 3; ++a) {", "        drift[a] = M_BIAS[a];", "    }",
+    body += [f"    for (a = 0; a < {n_out}; ++a) {{", f"        {out}[a] = {m}BIAS[a];", "    }",
              "    /* phi_k = exp(-|r - c_k|^2 / (2 w_k^2)) */",
              f"    for (k = 0; k < {n_c}; ++k) {{", "        sq = 0.0f;",
-             f"        for (j = 0; j < {n_r}; ++j) {{", "            r = zc[M_RBF_INDEX[j]] - M_CENTERS[k][j];",
-             "            sq += r * r;", "        }", "        phi = expf(sq * M_NEG_HALF_INV_W2[k]);",
-             "        for (a = 0; a < 3; ++a) {", "            drift[a] += M_HEAD[a][k] * phi;", "        }", "    }"]
+             f"        for (j = 0; j < {n_r}; ++j) {{", f"            r = zc[{m}RBF_INDEX[j]] - {m}CENTERS[k][j];",
+             "            sq += r * r;", "        }", f"        phi = expf(sq * {m}NEG_HALF_INV_W2[k]);",
+             f"        for (a = 0; a < {n_out}; ++a) {{", f"            {out}[a] += {m}HEAD[a][k] * phi;", "        }", "    }"]
     if p["linear"] is not None:
-        constants.append(f"static const float M_LINEAR[3][{n_in}] = {c_array(p['linear'])};")
-        body += ["    for (a = 0; a < 3; ++a) {", f"        for (i = 0; i < {n_in}; ++i) {{",
-                 "            drift[a] += M_LINEAR[a][i] * z[i];", "        }", "    }"]
+        constants.append(f"static const float {m}LINEAR[{n_out}][{n_in}] = {c_array(p['linear'])};")
+        body += [f"    for (a = 0; a < {n_out}; ++a) {{", f"        for (i = 0; i < {n_in}; ++i) {{",
+                 f"            {out}[a] += {m}LINEAR[a][i] * z[i];", "        }", "    }"]
     if p["poly"] is not None:
         n_p = p["poly"].shape[1]
-        constants.append(f"static const float M_POLY[3][{n_p}] = {c_array(p['poly'])};")
+        constants.append(f"static const float {m}POLY[{n_out}][{n_p}] = {c_array(p['poly'])};")
         body += ["    /* powers 2..degree of the clamped, normalised temperature */",
                  "    {", f"        float t = zc[{p['t']}], power = t;", f"        for (k = 0; k < {n_p}; ++k) {{",
-                 "            power *= t;", "            for (a = 0; a < 3; ++a) {",
-                 "                drift[a] += M_POLY[a][k] * power;", "            }", "        }", "    }"]
+                 "            power *= t;", f"            for (a = 0; a < {n_out}; ++a) {{",
+                 f"                {out}[a] += {m}POLY[a][k] * power;", "            }", "        }", "    }"]
     return "\n".join(constants), "\n".join(body)
 
 

@@ -4,7 +4,8 @@
  *     ./driver in.csv out.csv [repeat [still_s]]
  *
  * in.csv: a header line, then time_s,temp_c,gyro_x_dps,gyro_y_dps,gyro_z_dps[,aux...] per line
- * (nan allowed). out.csv: gyro_x_dps,gyro_y_dps,gyro_z_dps,flags per sample. The step loop runs
+ * (nan allowed). out.csv: gyro_x_dps,gyro_y_dps,gyro_z_dps,flags,drift_sigma_x_dps,drift_sigma_y_dps,
+ * drift_sigma_z_dps per sample. The step loop runs
  * `repeat` times from gyronet_init (default 1) and its best time per sample goes to stderr as
  * "ns_per_sample=..."; still_s > 0 calls gyronet_start_offset first.
  */
@@ -28,7 +29,7 @@ int main(int argc, char **argv)
 {
     FILE *in, *out;
     double *rows = NULL, best_s = 1e300, start_s;
-    float *results, gyro[3];
+    float *results, *sigmas, gyro[3];
     int *flags, repeat = argc > 3 ? atoi(argv[3]) : 1, c, r;
     double still_s = argc > 4 ? atof(argv[4]) : 0.0;
     size_t n = 0, capacity = 0, i;
@@ -59,6 +60,7 @@ int main(int argc, char **argv)
     fclose(in);
     results = malloc((n ? n : 1) * 3 * sizeof *results);
     flags = malloc((n ? n : 1) * sizeof *flags);
+    sigmas = malloc((n ? n : 1) * 3 * sizeof *sigmas);
     for (r = 0; r < (repeat > 0 ? repeat : 1); ++r) {
         gyronet_init(&state);
         if (still_s > 0.0) {
@@ -78,6 +80,9 @@ int main(int argc, char **argv)
 #else
             flags[i] = gyronet_step(&state, row[0], (float)row[1], gyro, results + 3 * i);
 #endif
+            sigmas[3 * i] = state.drift_sigma_dps[0];
+            sigmas[3 * i + 1] = state.drift_sigma_dps[1];
+            sigmas[3 * i + 2] = state.drift_sigma_dps[2];
         }
         start_s = now_s() - start_s;
         best_s = start_s < best_s ? start_s : best_s;
@@ -86,13 +91,15 @@ int main(int argc, char **argv)
     if (!(out = fopen(argv[2], "w"))) {
         return 2;
     }
-    fprintf(out, "gyro_x_dps,gyro_y_dps,gyro_z_dps,flags\n");
+    fprintf(out, "gyro_x_dps,gyro_y_dps,gyro_z_dps,flags,drift_sigma_x_dps,drift_sigma_y_dps,drift_sigma_z_dps\n");
     for (i = 0; i < n; ++i) {
-        fprintf(out, "%.9g,%.9g,%.9g,%d\n", results[3 * i], results[3 * i + 1], results[3 * i + 2], flags[i]);
+        fprintf(out, "%.9g,%.9g,%.9g,%d,%.9g,%.9g,%.9g\n", results[3 * i], results[3 * i + 1], results[3 * i + 2],
+                flags[i], sigmas[3 * i], sigmas[3 * i + 1], sigmas[3 * i + 2]);
     }
     fclose(out);
     free(rows);
     free(results);
     free(flags);
+    free(sigmas);
     return 0;
 }
