@@ -153,7 +153,8 @@ def diagnose_runs(paths: Sequence[str], data_options: Mapping[str, Any], make_mo
         within = np.column_stack([basis, dummies])
         free_w = np.concatenate([free, np.ones(dummies.shape[1], bool)])
         result = screen(within, rows.target, values, rows.fold, rows.recording, [feature_name(s) for s in pool],
-                        pool, options.n_shifts, options.seed + len(rounds), options.ridge, free_w)
+                        pool, options.n_shifts, options.seed + len(rounds), options.ridge, free_w,
+                        max(1, int(round(options.span_s / options.block_s))))
         if run_pool:
             rs = screen_runs(basis, free, rows.target, rows.fold, rows.recording, rows.position, run_pool,
                              options.n_shifts, options.seed + len(rounds), options.ridge)
