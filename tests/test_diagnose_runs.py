@@ -61,10 +61,10 @@ def test_complexity_orders_measured_before_derived_and_no_lag_before_a_lag():
                     {"kind": "time"},
                     {"kind": "hysteresis", "source": "temp_c", "width": 2.0},
                     {"kind": "column", "source": "board_temp_c", "tau_s": 0.0}], key=complexity)
-    # a recording column as it is, then through a lag (issue 24), then what is derived
     assert order[0] == {"kind": "column", "source": "board_temp_c", "tau_s": 0.0}
-    assert order[1] == {"kind": "column", "source": "board_temp_c", "tau_s": 300.0}
-    assert order[2] == {"kind": "time"}
+    assert order[1] == {"kind": "time"}
+    # of one free parameter, a recording column through a lag before what is derived from the temperature
+    assert order[2] == {"kind": "column", "source": "board_temp_c", "tau_s": 300.0}
     assert order[3]["kind"] == "hysteresis" and order[-1] == {"kind": "lag", "source": "temp_c", "tau_s": 1200.0}
 
 

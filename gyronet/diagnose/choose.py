@@ -11,10 +11,10 @@ columns' lags (60, 300, 1200, 3600 s) are a coarser grid than the temperature's.
 **Equivalent explanations.** Families whose refined score is within the screen's own noise of
 the best family's (``tie_z`` standard errors of their paired difference on the same held-out
 blocks, clustered by span, :mod:`.ties`; or less than 1 % of the best score) explain the
-held-out residual equally well. Of such a group a measured explanation is tried first
-(``complexity``: a recording column as it is, then a recording column through a lag, then what is
-derived from the temperature or the clock; fewer free parameters, no lag before a lag within
-each) and the others are its ``alternatives``.
+held-out residual equally well. Of such a group the simplest is tried first, and of equal
+freedom a measured one (``complexity``: a recording column as it is, ageing or a warm-up; then a
+recording column through a lag; then what is derived from the temperature, a lag of ``temp_c``
+last) and the others are its ``alternatives``.
 
 **What a derived effect approximates.** When the effect kept is derived (a lag of ``temp_c``, a
 warm-up, ...) and a measured column scored nearly as well (within ``near`` of its score) and
@@ -88,22 +88,27 @@ def refine(spec: Mapping[str, Any], rows: ScreenRows, basis: tuple, ridge: float
     return best
 
 
-def complexity(spec: Mapping[str, Any]) -> tuple[int, int, int, int]:
-    """Sort key, measured and simplest first: (derived, free parameters, lagged, not a run offset).
+def complexity(spec: Mapping[str, Any]) -> tuple[int, ...]:
+    """Sort key, simplest and measured first: (free parameters, tier, not measured, lagged, not a run offset).
 
-    A recording column (other than ``temp_c``) is measured: as it is, it has no free parameter;
-    through a lag or squared, one. Everything else is derived from the temperature or the clock:
-    ageing (hours) has no parameter, a time constant, a width or an exponent is one, and a lag
-    filter comes after an instantaneous shape. A per-run offset (its constants are one more than
-    a coefficient only beyond two runs) comes first of equals: every power-up has one.
+    A recording column (other than ``temp_c``) is measured; as it is, it has no free parameter,
+    like ageing (hours, from the clock). A time constant, a width or an exponent is one. Of
+    equal freedom, the tiers: a column as it is and the clock's own shapes (ageing, a warm-up);
+    then a recording column through a lag or squared; then what is derived from the temperature
+    (hysteresis, powers, then a lag of ``temp_c``). A warm-up comes before a lagged column because
+    a lag filter's start mimics one (``candidates.filter_tau``): a static accelerometer through a
+    2141 s lag took the simulator's warm-up's place when it came first. A lag filter comes after
+    an instantaneous shape. A per-run offset (its constants are one more than a coefficient only
+    beyond two runs) comes first of equals: every power-up has one.
     """
     kind = spec["kind"]
     if kind == "run_offset":
-        return 0, int(spec.get("n_free", 0)), 0, 0
+        return int(spec.get("n_free", 0)), 0, 0, 0, 0
     n_free = int(bool(spec.get("tau_s")) or "width" in spec or kind == "power")
-    derived = effect_kind(spec) != "column"
-    lagged = kind == "lag" or (kind == "column" and bool(spec.get("tau_s"))) or (kind == "time" and bool(spec.get("tau_s")))
-    return int(derived), n_free, int(lagged), 1
+    measured = effect_kind(spec) == "column"
+    tier = 0 if kind == "time" or (measured and not n_free) else 1 if measured else 2
+    lagged = kind == "lag" or (kind == "column" and bool(spec.get("tau_s")))
+    return n_free, tier, int(not measured), int(lagged), 1
 
 
 def alternative(spec: Mapping[str, Any], score: float) -> dict[str, Any]:
@@ -186,7 +191,7 @@ def approximations(choice: Choice, result: ScreenResult, passing: np.ndarray, ro
     ``corr`` is the correlation of the two features' 60 s means once the basis (the model's own
     regressors and a constant) is removed by least squares: what each adds to the model.
     """
-    if not complexity(choice.spec)[0]:
+    if effect_kind(choice.spec) in ("column", "run_offset"):
         return []
     floor = (1 - near) * choice.score
     best: dict[str, int] = {}

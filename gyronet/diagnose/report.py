@@ -199,9 +199,9 @@ def alternatives_lines(effect: Mapping[str, Any]) -> list[str]:
         return []
     names = "; ".join(f"`{a['kind']}` of `{a['source']}` {a['params']} (score {a['score']:.3g})" for a in alternatives)
     return [f"Equally good within the screen's own noise: {names}. This record cannot tell them apart; the "
-            f"effect kept is the first of them that the retrained network confirmed, tried in this order: a "
-            f"recording column as it is, then a recording column through a lag, then what is derived from the "
-            f"temperature or the clock (fewer free parameters and no lag before a lag within each).", ""]
+            f"effect kept is the first of them that the retrained network confirmed, tried simplest first and, "
+            f"of equal freedom, in this order: a recording column as it is or the clock's own shapes, then a "
+            f"recording column through a lag, then what is derived from the temperature (a lag of it last).", ""]
 
 
 def write_report(out_dir: Path, diagnosis: Mapping[str, Any], details: Mapping[str, Any], rows: ScreenRows,
