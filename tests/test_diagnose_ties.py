@@ -120,8 +120,8 @@ def test_measured_columns_come_before_what_is_derived_from_the_temperature():
     # no parameter first; then the clock's warm-up (a lagged column's start mimics one), the
     # measured column through a lag, and what is derived from the temperature, its lag last
     assert order == [{"kind": "column", "source": "board_temp_c", "tau_s": 0.0}, {"kind": "time"},
-                     {"kind": "time", "tau_s": 900.0}, BOARD_LAG, {"kind": "hysteresis", "source": "temp_c", "width": 2.0},
-                     LAG_T]
+                     {"kind": "time", "tau_s": 900.0}, BOARD_LAG,
+                     {"kind": "hysteresis", "source": "temp_c", "width": 2.0}, LAG_T]
 
 
 @pytest.mark.slow

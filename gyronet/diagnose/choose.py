@@ -124,9 +124,10 @@ def tie_groups(result: ScreenResult, passing: np.ndarray, tie_z: float = 2.0, re
     A group holds the families whose score is below its best's by no more than the screen's noise,
     ``tie_z`` standard errors of their paired difference on the same held-out blocks
     (``ScreenResult.tie_noise``), or by less than ``rel_tol`` of the best score: two near-copies of
-    one signal differ consistently by a hair, which the paired error alone would call apart. (The median best score under the circular shifts, what chance alone
-    gives, was tried as the floor instead: on slow residuals it reached 10 % of the best and made
-    hours-since-start the equal of a 5000 s warm-up that it is not on another history.)
+    one signal differ consistently by a hair, which the paired error alone would call apart. (The
+    median best score under the circular shifts, what chance alone gives, was tried as the floor
+    instead: on slow residuals it reached 10 % of the best and made hours-since-start the equal
+    of a 5000 s warm-up that it is not on another history.)
     """
     best_of_family: dict[tuple, int] = {}
     for i in passing:  # best score first
