@@ -63,7 +63,9 @@ def test_complexity_orders_measured_before_derived_and_no_lag_before_a_lag():
                     {"kind": "column", "source": "board_temp_c", "tau_s": 0.0}], key=complexity)
     assert order[0] == {"kind": "column", "source": "board_temp_c", "tau_s": 0.0}
     assert order[1] == {"kind": "time"}
-    assert order[2]["kind"] == "hysteresis" and order[-1]["tau_s"] in (300.0, 1200.0)
+    # of one free parameter, a recording column through a lag before what is derived from the temperature
+    assert order[2] == {"kind": "column", "source": "board_temp_c", "tau_s": 300.0}
+    assert order[3]["kind"] == "hysteresis" and order[-1] == {"kind": "lag", "source": "temp_c", "tau_s": 1200.0}
 
 
 # ------------------------------------------------------------------------------------- run level

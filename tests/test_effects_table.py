@@ -29,6 +29,10 @@ def test_found_effects_are_named_by_kind_source_and_parameter():
              {"kind": "time", "source": "time_s", "params": {}}]
     assert found_text(found) == "lag `temp_c` tau_s=1773, time `time_s`"
     assert found_text([]) == "nothing"
+    # equivalent explanations are named with the effect kept, so that a reader of the table sees them
+    board = {"kind": "column", "source": "board_temp_c", "params": {"tau_s": 1150.0},
+             "alternatives": [{"kind": "lag", "source": "temp_c", "params": {"tau_s": 2018.0}, "score": 2.28}]}
+    assert found_text([board]) == "column `board_temp_c` tau_s=1150 (or lag `temp_c` tau_s=2018)"
 
 
 def test_a_row_reads_baseline_to_final_per_axis():
@@ -105,5 +109,5 @@ def test_an_unknown_effect_is_refused_in_one_line_before_any_work(tmp_path):
     proc = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True)
     assert proc.returncode == 2
     assert proc.stderr == ("error: effects: no conf/sim/effects/no_such_effect.yaml "
-                           "(known: ageing, all, aux, hysteresis, lag2, none, warmup)\n")
+                           "(known: ageing, all, aux, board, hysteresis, lag2, none, warmup)\n")
     assert not (tmp_path / "none").exists()

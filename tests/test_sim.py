@@ -12,7 +12,7 @@ from hydra import compose, initialize_config_dir
 
 from gyronet.data import load_recording, load_truth, truth_path
 from gyronet.errors import GyronetError
-from gyronet.sim import (EFFECTS, chamber_profile, draw_sensor, earth_rate_dps, play_operator,
+from gyronet.sim import (EFFECTS, chamber_profile, draw_sensor, earth_rate_dps, first_order_lag, play_operator,
                          simulate, write_simulation)
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -287,6 +287,17 @@ def test_hysteresis_is_plus_gain_heating_and_minus_gain_cooling(base_cycle):
     assert np.mean(np.isclose(effect[rate > 0.01], 0.05)) > 0.7
     assert np.mean(np.isclose(effect[rate < -0.01], -0.05)) > 0.7
     assert np.allclose(play_operator(np.array([0.0, 3.0, 2.0, -1.0, 5.0]), 1.0), [0, 2, 2, 0, 4])
+
+
+def test_a_board_die_gradient_follows_the_recorded_board_column():
+    sim = simulate("cycle", fs_hz=0.1, seed=1, sensor_seed=1, effects={"board": {"tau_s": 600.0}})
+    board_c, die_c = sim.recording["board_temp_c"], sim.truth["die_temp_c"]
+    # the drift is gain * (lag(B, 600 s) - T): rebuilt from the recorded column within its read noise
+    gradient_c = first_order_lag(board_c, 0.1, 600.0) - die_c
+    assert np.abs(sim.truth["effect_board_x_dps"] - 0.008 * gradient_c).max() < 0.008 * 0.05
+    assert np.allclose(sim.truth["effect_board_y_dps"] / sim.truth["effect_board_x_dps"], -0.75)
+    # the board is slower than the die: on the cycle's ramps they part by degrees
+    assert np.ptp(gradient_c) > 3.0 and np.std(board_c - sim.recording["temp_c"]) > 1.0
 
 
 def test_lag2_warmup_ageing_shapes():

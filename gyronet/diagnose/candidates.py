@@ -164,8 +164,14 @@ def effect_params(spec: Mapping[str, Any]) -> dict[str, Any]:
 
 
 def family(spec: Mapping[str, Any]) -> tuple[str, str, bool]:
-    """Candidates that differ only in a continuous parameter: (kind, source, has a time constant)."""
-    return spec["kind"], effect_source(spec), bool(spec.get("tau_s")) or spec["kind"] != "time"
+    """Candidates that differ only in a continuous parameter: (kind, source, has a time constant).
+
+    A column as it is (no parameter, what the sensor measured) and the same column through a lag
+    are two families, as hours since the start and a warm-up are: else the column as it is would
+    only ever be compared through its family's best lag, and lose to it by a hair.
+    """
+    timed = bool(spec.get("tau_s")) or spec["kind"] not in ("time", "column")
+    return spec["kind"], effect_source(spec), timed
 
 
 def filter_tau(spec: Mapping[str, Any]) -> float | None:

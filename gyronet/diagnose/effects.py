@@ -58,14 +58,21 @@ def effect_row(effect: str, diagnosis: Mapping[str, Any], baseline: Mapping[str,
             "drift_error_ratio": final["drift_error_all_dps"] / baseline["drift_error_all_dps"]}
 
 
+def _named(effect: Mapping[str, Any]) -> str:
+    params = " ".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}" for k, v in effect["params"].items())
+    return f"{effect['kind']} `{effect['source']}` {params}".rstrip()
+
+
 def found_text(found: Sequence[Mapping[str, Any]]) -> str:
-    """Name what was found as the README does, kind, source and parameter (``lag `temp_c` tau_s=1773``)."""
+    """Name what was found as the README does, kind, source and parameter (``lag `temp_c` tau_s=1773``),
+    each effect's equivalent explanations in brackets (``(or lag `temp_c` tau_s=2018)``)."""
     if not found:
         return "nothing"
     parts = []
     for effect in found:
-        params = " ".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}" for k, v in effect["params"].items())
-        parts.append(f"{effect['kind']} `{effect['source']}` {params}".rstrip())
+        alternatives = effect.get("alternatives") or []
+        others = f" (or {'; '.join(_named(a) for a in alternatives)})" if alternatives else ""
+        parts.append(_named(effect) + others)
     return ", ".join(parts)
 
 

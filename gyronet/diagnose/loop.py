@@ -47,8 +47,8 @@ from gyronet.dataset import DriftData, block_rmse, load_cached
 from gyronet.errors import GyronetError
 from gyronet.diagnose.candidates import (CandidateGrid, candidate_specs, effect_kind, effect_params,
                                          effect_source, source_columns)
-from gyronet.diagnose.choose import Choice, ranked, refine, score_specs
-from gyronet.diagnose.report import evidence, write_report
+from gyronet.diagnose.choose import Choice, approximations, ranked, refine, score_specs
+from gyronet.diagnose.report import approximation_sentence, evidence, write_report
 from gyronet.diagnose.rows import ScreenRows
 from gyronet.diagnose.screen import screen
 from gyronet.export import save_bundle
@@ -89,9 +89,11 @@ class DiagnoseOptions:
     refine_top
         Families tried per round (refined, retrained, confirmed), simplest of the best group first.
     tie_z
-        Families whose best screen score is within this many standard errors (of the paired
-        per-fold difference) of the best family's, or within 1 % of it, are equivalent
-        explanations: the simplest is tried first, the others are listed as its ``alternatives``.
+        Families whose refined screen score is within this many standard errors of the best
+        family's (of their paired difference on the same held-out blocks, clustered by span:
+        :mod:`.ties`), or within 1 % of it, are equivalent explanations: a measured one and the
+        simplest is tried first, the others are listed as its ``alternatives``. 2: a difference
+        that chance gives two equivalent explanations 95 % of the time.
     refine_passes
         Times the chosen parameter is searched again with the retrained network (each may retrain).
     seed
@@ -110,7 +112,7 @@ class DiagnoseOptions:
     n_folds: int = 5
     ridge: float | None = None
     refine_top: int = 3
-    tie_z: float = 1.0
+    tie_z: float = 2.0
     refine_passes: int = 2
     seed: int = 0
     candidates: CandidateGrid = field(default_factory=CandidateGrid)
@@ -340,7 +342,8 @@ def diagnose(data_options: Mapping[str, Any], make_model: Callable[[int], torch.
     while len(effects) < options.max_effects and pool:
         basis = rows.basis(stage.model, stage.data.features)
         result = screen(basis[0], rows.target, values, rows.fold, rows.recording, [feature_name(s) for s in pool],
-                        pool, options.n_shifts, options.seed + len(rounds), options.ridge, basis[1])
+                        pool, options.n_shifts, options.seed + len(rounds), options.ridge, basis[1],
+                        max(1, int(round(options.span_s / options.block_s))))
         passing = result.passing(options.alpha, options.min_gain)
         round_ = {"n_candidates": len(pool), "n_shifts": len(result.null_max), "ridge": result.ridge,
                   "null_max_quantile": float(np.quantile(result.null_max, 1 - options.alpha)) if len(result.null_max)
@@ -370,7 +373,9 @@ def diagnose(data_options: Mapping[str, Any], make_model: Callable[[int], torch.
             "params": effect_params(choice.spec), "axes": axes,
             "val_rmse_before_dps": stage.val_rmse(), "val_rmse_after_dps": trained.val_rmse(),
             "evidence": evidence(choice.spec, choice.score, choice.rmse_after, choice.index, result, axes,
-                                 options.alpha, options.min_gain, confirmed, options.confirm_gain),
+                                 options.alpha, options.min_gain, confirmed, options.confirm_gain)
+            + approximation_sentence(choice.spec, choice.score,
+                                     approximations(choice, result, passing, rows, basis)),
             "alternatives": choice.alternatives,
         })
         log.info("effect %d: %s", len(effects), effects[-1]["evidence"])

@@ -89,6 +89,17 @@ def evidence(spec: Mapping[str, Any], score: float, rmse_after: np.ndarray, inde
             f"residual confirms it (score {confirmed:.3g} >= {confirm_gain:g}).")
 
 
+def approximation_sentence(spec: Mapping[str, Any], score: float, approximations: Sequence[Mapping[str, Any]]) -> str:
+    """The sentence that names the measured columns a derived effect approximates ('' if none)."""
+    if not approximations:
+        return ""
+    named = "; ".join(f"{describe(a['spec'])} (`{a['name']}`, score {a['score']:.3g}, correlation "
+                      f"{a['corr']:.3g} once the model's own regressors are removed)" for a in approximations)
+    first = approximations[0]["spec"]["source"]
+    return (f" It approximates a measured column: {named}, against {score:.3g} for {describe(spec)}. "
+            f"Look at what `{first}` measures before looking for a lag or a state inside the package.")
+
+
 def _safe(name: str) -> str:
     return re.sub(r"[^A-Za-z0-9_.-]+", "_", name)
 
@@ -188,8 +199,9 @@ def alternatives_lines(effect: Mapping[str, Any]) -> list[str]:
         return []
     names = "; ".join(f"`{a['kind']}` of `{a['source']}` {a['params']} (score {a['score']:.3g})" for a in alternatives)
     return [f"Equally good within the screen's own noise: {names}. This record cannot tell them apart; the "
-            f"effect kept is the simplest of them (fewer free parameters, a measured column before a derived one, "
-            f"no lag before a lag).", ""]
+            f"effect kept is the first of them that the retrained network confirmed, tried simplest first and, "
+            f"of equal freedom, in this order: a recording column as it is or the clock's own shapes, then a "
+            f"recording column through a lag, then what is derived from the temperature (a lag of it last).", ""]
 
 
 def write_report(out_dir: Path, diagnosis: Mapping[str, Any], details: Mapping[str, Any], rows: ScreenRows,

@@ -34,8 +34,8 @@ from gyronet.data import AXES
 from gyronet.diagnose.advice import advice_lines, orientation_label, record_advice, runs_advice
 from gyronet.diagnose.candidates import candidate_specs, describe, effect_kind, effect_params, effect_source
 from gyronet.diagnose.candidates import source_columns
-from gyronet.diagnose.choose import complexity, ranked
-from gyronet.diagnose.report import alternatives_lines
+from gyronet.diagnose.choose import approximations, complexity, ranked
+from gyronet.diagnose.report import alternatives_lines, approximation_sentence
 from gyronet.diagnose.rows import ScreenRows
 from gyronet.diagnose.runlevel import RunCandidate, run_candidates, screen_runs
 from gyronet.diagnose.screen import screen
@@ -153,7 +153,8 @@ def diagnose_runs(paths: Sequence[str], data_options: Mapping[str, Any], make_mo
         within = np.column_stack([basis, dummies])
         free_w = np.concatenate([free, np.ones(dummies.shape[1], bool)])
         result = screen(within, rows.target, values, rows.fold, rows.recording, [feature_name(s) for s in pool],
-                        pool, options.n_shifts, options.seed + len(rounds), options.ridge, free_w)
+                        pool, options.n_shifts, options.seed + len(rounds), options.ridge, free_w,
+                        max(1, int(round(options.span_s / options.block_s))))
         if run_pool:
             rs = screen_runs(basis, free, rows.target, rows.fold, rows.recording, rows.position, run_pool,
                              options.n_shifts, options.seed + len(rounds), options.ridge)
@@ -211,7 +212,9 @@ def diagnose_runs(paths: Sequence[str], data_options: Mapping[str, Any], make_mo
                                           f"within the runs (family-wise p = {result.p_value[choice.index]:.3g} <= "
                                           f"{alpha:g}, circular shifts within each run); retrained by run, the "
                                           f"held-out runs' residual (own constant removed) confirms it (score "
-                                          f"{confirmed:.3g} >= {options.confirm_gain:g})."),
+                                          f"{confirmed:.3g} >= {options.confirm_gain:g}).")
+                             + approximation_sentence(choice.spec, choice.score,
+                                                      approximations(choice, result, passing, rows, (within, free_w))),
                              "alternatives": choice.alternatives}, trained)
                     drop = feature_name(choice.spec)
                     keep = [i for i, s in enumerate(pool) if feature_name(s) != drop]

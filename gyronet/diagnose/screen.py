@@ -47,6 +47,7 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 
 from gyronet.data import AXES
+from gyronet.diagnose.ties import paired_noise, span_labels
 
 log = logging.getLogger(__name__)
 
@@ -107,19 +108,37 @@ def cv_sse_by_fold(folds: Sequence[_Fold], target: np.ndarray, candidates: np.nd
     sse0 = np.zeros((len(folds), target.shape[1]))
     sse1 = np.zeros((len(folds), candidates.shape[1], target.shape[1]))
     for k, fold in enumerate(folds):
-        # Frisch-Waugh-Lovell: residualise target and candidates on the basis (fitted on the
-        # training rows), then one coefficient per candidate and axis from the training rows
-        y_res, c_res = _fwl(fold, target), _fwl(fold, candidates)
-        tr, te = fold.train, fold.test
-        energy = _dots(c_res[tr], c_res[tr])
-        usable = energy > 1e-9 * tr.sum()
-        gamma = np.where(usable[:, None], (c_res[tr].T @ y_res[tr]) / np.where(usable, energy, 1.0)[:, None], 0.0)
-        base = _dots(y_res[te], y_res[te])
+        y_te, c_te, gamma = _held_out_fit(fold, target, candidates)
+        base = _dots(y_te, y_te)
         sse0[k] = base
         # sum (y - gamma c)^2 = sum y^2 - 2 gamma c.y + gamma^2 c.c
-        sse1[k] = (base[None, :] - 2 * gamma * (c_res[te].T @ y_res[te])
-                   + gamma**2 * _dots(c_res[te], c_res[te])[:, None])
+        sse1[k] = base[None, :] - 2 * gamma * (c_te.T @ y_te) + gamma**2 * _dots(c_te, c_te)[:, None]
     return sse0, sse1
+
+
+def cv_sse_by_row(folds: Sequence[_Fold], target: np.ndarray, candidates: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Held-out squared errors row by row: (n, 3) without and (n, m, 3) with each candidate (0 on
+    rows never held out), so that two candidates can be compared on the same blocks, paired."""
+    sse0 = np.zeros(target.shape)
+    sse1 = np.zeros((len(target), candidates.shape[1], target.shape[1]))
+    for fold in folds:
+        y_te, c_te, gamma = _held_out_fit(fold, target, candidates)
+        sse0[fold.test] = y_te**2
+        sse1[fold.test] = (y_te[:, None, :] - c_te[:, :, None] * gamma[None, :, :]) ** 2
+    return sse0, sse1
+
+
+def _held_out_fit(fold: _Fold, target: np.ndarray, candidates: np.ndarray) -> tuple[np.ndarray, ...]:
+    """The fold's held-out target and candidates, residualised on the basis, and each candidate's
+    coefficient per axis (m, 3) fitted on the training rows."""
+    # Frisch-Waugh-Lovell: residualise target and candidates on the basis (fitted on the
+    # training rows), then one coefficient per candidate and axis from the training rows
+    y_res, c_res = _fwl(fold, target), _fwl(fold, candidates)
+    tr, te = fold.train, fold.test
+    energy = _dots(c_res[tr], c_res[tr])
+    usable = energy > 1e-9 * tr.sum()
+    gamma = np.where(usable[:, None], (c_res[tr].T @ y_res[tr]) / np.where(usable, energy, 1.0)[:, None], 0.0)
+    return y_res[te], c_res[te], gamma
 
 
 def _scores(sse0: np.ndarray, sse1: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -182,11 +201,16 @@ class ScreenResult:
     n_folds: int
     ridge: float
     fold_score: np.ndarray | None = None  # (m, k): the score on each held-out fold alone
+    row_sse: tuple | None = None  # held-out squared errors per row, (n, 3) without and (n, m, 3) with
+    span: np.ndarray | None = None  # (n,): span of each row (``ties.span_labels``), -1 never held out
 
     def tie_noise(self, best: int, other: np.ndarray) -> np.ndarray:
         """The screen's own noise on ``score[best] - score[other]``: the standard error of the paired
-        per-fold difference (0 with a single held-out set, where no such noise can be measured)."""
+        per-block difference, clustered by span (:mod:`.ties`); without the rows, of the paired
+        per-fold difference (0 with a single held-out set of one span)."""
         other = np.atleast_1d(other)
+        if self.row_sse is not None and self.span is not None:
+            return paired_noise(*self.row_sse, self.gain, self.span, best, other)
         if self.fold_score is None or self.fold_score.shape[1] < 2:
             return np.zeros(len(other))
         diff = self.fold_score[best][None, :] - self.fold_score[other]
@@ -213,7 +237,7 @@ class ScreenResult:
 def screen(basis: np.ndarray, target: np.ndarray, candidates: np.ndarray, fold: np.ndarray,
            recording: np.ndarray, names: Sequence[str], specs: Sequence[Mapping[str, Any]],
            n_shifts: int = 199, seed: int = 0, ridge: float | None = None,
-           free: np.ndarray | None = None) -> ScreenResult:
+           free: np.ndarray | None = None, span_rows: int = 10) -> ScreenResult:
     """Test every candidate against the current model's held-out residual.
 
     Parameters
@@ -240,6 +264,9 @@ def screen(basis: np.ndarray, target: np.ndarray, candidates: np.ndarray, fold: 
         by cross-validation of the basis alone (``choose_ridge``).
     free
         (p,) regressors never penalised (the model's inputs themselves), or None.
+    span_rows
+        Longest span, in rows, over which the tie test's noise is clustered (:mod:`.ties`): the
+        cross-validation span over the block (600 s / 60 s).
     """
     ridge = choose_ridge(basis, target, fold, free) if ridge is None else ridge
     folds = _folds(basis, fold, ridge, free)
@@ -262,14 +289,18 @@ def screen(basis: np.ndarray, target: np.ndarray, candidates: np.ndarray, fold: 
     n_test = int(sum(f.test.sum() for f in folds))
     return ScreenResult(list(names), [dict(s) for s in specs], gain, score, p_value, axis_p, null_max,
                         np.sqrt(sse0 / n_test), np.sqrt(np.clip(sse1, 0, None) / n_test),
-                        len(target), len(folds), ridge, fold_score)
+                        len(target), len(folds), ridge, fold_score, cv_sse_by_row(folds, target, cand),
+                        span_labels(fold, recording, span_rows))
 
 
 def score_only(basis: np.ndarray, target: np.ndarray, candidates: np.ndarray, fold: np.ndarray,
-               ridge: float | None = None, free: np.ndarray | None = None) -> tuple[np.ndarray, ...]:
+               ridge: float | None = None, free: np.ndarray | None = None, by_row: bool = False) -> tuple:
     """Held-out gains (m, 3), scores (m,) and RMS after (m, 3), without the permutation test
-    (for refining a parameter of a candidate that passed)."""
+    (for refining a parameter of a candidate that passed); with ``by_row``, also the held-out
+    squared errors per row, ``cv_sse_by_row``'s pair, for the tie test."""
     folds = _folds(basis, fold, choose_ridge(basis, target, fold, free) if ridge is None else ridge, free)
-    sse0, sse1 = cv_sse(folds, target, np.nan_to_num(_standardise(candidates)))
+    cand = np.nan_to_num(_standardise(candidates))
+    sse0, sse1 = cv_sse(folds, target, cand)
     n_test = int(sum(f.test.sum() for f in folds))
-    return (*_scores(sse0, sse1), np.sqrt(np.clip(sse1, 0, None) / n_test))
+    out = (*_scores(sse0, sse1), np.sqrt(np.clip(sse1, 0, None) / n_test))
+    return (*out, cv_sse_by_row(folds, target, cand)) if by_row else out

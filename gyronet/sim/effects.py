@@ -18,6 +18,10 @@ aux         ``gain_dps_per_v * (lag(v, tau_s) - nominal)`` of an auxiliary chann
             the column ``column`` (default ``vdd_v``: 3.3 V with slow wander and level steps)
 warmup      ``amplitude_dps * exp(-t / tau_s)``: a settling after power-on (t = 0)
 ageing      ``rate_dps_per_h * t / 3600``: a linear drift in time
+board       ``gain_dps_per_c * (lag(B, tau_s) - T)``: a gradient between the board and the die, where
+            the board ``B`` follows the chamber through its own ``board_tau_s`` (slower than the die)
+            plus its warm-up, seen through ``tau_s`` where the gradient acts; ``B`` is recorded as
+            ``column`` (default ``board_temp_c``), which no model is told about
 =========== ======================================================================================
 
 References
@@ -166,8 +170,29 @@ def ageing(ctx: EffectContext,
     return EffectOutput(_axes(rate_dps_per_h, hours, "ageing.rate_dps_per_h"))
 
 
+def board(ctx: EffectContext, column: str = "board_temp_c", board_tau_s: float = 1500.0, offset_c: float = 1.0,
+          self_heating_c: float = 2.0, warmup_tau_s: float = 1800.0, tau_s: float = 600.0,
+          read_noise_c: float = 0.05, lsb_c: float = 0.01,
+          gain_dps_per_c: Sequence[float] | float = (0.008, -0.006, 0.005)) -> EffectOutput:
+    """A board/die gradient: drift ``gain * (lag(B, tau_s) - T)``, the board temperature ``B`` recorded.
+
+    ``B`` is the chamber through the board's own time constant ``board_tau_s``, ``offset_c``
+    above it, plus the board's self-heating ``self_heating_c * (1 - exp(-t / warmup_tau_s))``;
+    ``tau_s`` is the path from the board to where the gradient acts (0: none). Settled, the
+    gradient is a constant; on every ramp it follows the lag between board and die, which a lag
+    of the die temperature alone can only approximate. The column gets read noise of std
+    ``read_noise_c``, quantised to ``lsb_c``.
+    """
+    elapsed_s = ctx.time_s - ctx.time_s[0]
+    board_c = (first_order_lag(ctx.chamber_temp_c, ctx.fs_hz, board_tau_s) + offset_c
+               + self_heating_c * -np.expm1(-elapsed_s / warmup_tau_s))
+    gradient_c = first_order_lag(board_c, ctx.fs_hz, tau_s) - ctx.die_temp_c
+    reading = quantise(board_c + read_noise_c * ctx.rng.standard_normal(len(board_c)), lsb_c)
+    return EffectOutput(_axes(gain_dps_per_c, gradient_c, "board.gain_dps_per_c"), {column: reading})
+
+
 EFFECTS: dict[str, Callable[..., EffectOutput]] = {
-    "lag2": lag2, "hysteresis": hysteresis, "aux": aux, "warmup": warmup, "ageing": ageing,
+    "lag2": lag2, "hysteresis": hysteresis, "aux": aux, "warmup": warmup, "ageing": ageing, "board": board,
 }
 
 
