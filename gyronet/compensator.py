@@ -21,7 +21,7 @@ from gyronet.errors import BundleError, GyronetError
 from gyronet.export import read_bundle
 from gyronet.features import FeatureExtractor
 from gyronet.guard import GYRO_RANGE_DPS, bad_gyro
-from gyronet.skipping import held_outside, stage_skipping
+from gyronet.skipping import stage_skipping
 from gyronet.small_model import SMALL_ROWS, row_model
 
 log = logging.getLogger(__name__)
@@ -74,7 +74,6 @@ class Compensator:
         self.n_out_of_range = 0
         self.n_bad_input = 0  # rows flagged ``bad_input`` since reset()
         self._last_rate_dps: np.ndarray | list | None = None  # the last output row: what a bad gyro value becomes
-        self._held_temp_c: float | None = None
         self.startup = None  # gyronet.startup.StartupOffset: the run's offset from its first still seconds
         self._row_model = None  # the model on one row of floats, for chunks of a few rows (use_small_chunks)
 
@@ -146,7 +145,6 @@ class Compensator:
             self.startup.reset()
         self.n_out_of_range = 0
         self.n_bad_input, self._last_rate_dps = 0, None
-        self._held_temp_c: float | None = None  # the last accepted temperature: what a rejected row is flagged by
 
     def use_startup(self, still_s: float = 0.0, motion_dps: float = 0.5, static_rate_dps=(0.0, 0.0, 0.0)) -> None:
         """Estimate the run's offset over the first ``still_s`` s and apply it from then on (0: off)."""
@@ -196,8 +194,8 @@ class Compensator:
                                                            self._last_rate_dps)
         else:
             rate_dps = self._stage(residual_dps)
-        out_of_range, self._held_temp_c = held_outside(columns["temp_c"], rejected, self._held_temp_c,
-                                                       self.temp_range_c)
+        # from the reading itself, as the C compensator does: a rejected row outside the range carries both flags
+        out_of_range = self._outside(np.asarray(columns["temp_c"], dtype=np.float64))
         self.n_out_of_range += int(out_of_range.sum())
         self.n_bad_input += int(np.count_nonzero(bad_input))
         return Compensated(rate_dps, drift_dps, out_of_range, bad_input)
@@ -221,12 +219,9 @@ class Compensator:
             # a rejected row gets the filter's estimate but stays out of its state (gyronet.skipping)
             run = self.kalman.peek if rejected else self.kalman.process
             rate_dps = run(np.array([rate_dps]))[0].tolist()
-        if rejected:
-            held_c = self._held_temp_c
-            out_of_range = held_c is not None and self._outside(held_c)
-        else:
-            self._last_rate_dps, self._held_temp_c = rate_dps, values["temp_c"]
-            out_of_range = self._outside(values["temp_c"])
+        if not rejected:
+            self._last_rate_dps = rate_dps
+        out_of_range = self._outside(values["temp_c"])
         self.n_out_of_range += out_of_range
         self.n_bad_input += rejected
         return CompensatedRow(rate_dps, drift_dps, out_of_range, rejected)

@@ -5,11 +5,12 @@ A flagged row is a glitch: an impossible temperature (``gyronet.guard.TempGuard`
 does the same for what comes after the model, so that every other row's output is exactly that of
 the recording with the flagged rows removed:
 
+- the start-up window leaves it out of its mean (``StartupOffset.process``'s ``valid``);
 - the Kalman stage gives a flagged row its estimate from that row (``KalmanStage.peek``: a gyro
-  value that is bad on an axis replaced by that axis's last output) and then forgets it;
-- the out-of-range flag of a row whose temperature was rejected is that of the temperature the
-  model was evaluated at (the last accepted reading), not of the glitch: the glitch is
-  ``bad_input``, and the model did not see it.
+  value that is bad on an axis replaced by that axis's last output) and then forgets it.
+
+``out_of_range`` stays the reading's own (as in the C compensator): a glitch outside the trained
+range carries both flags.
 """
 from __future__ import annotations
 
@@ -60,21 +61,3 @@ def stage_skipping(kalman, rate_dps: np.ndarray, skip: np.ndarray, bad_dps: np.n
 
 def _run(kalman, rate_dps: np.ndarray) -> np.ndarray:
     return rate_dps if kalman is None else kalman.process(rate_dps)
-
-
-def held_outside(temp_c: np.ndarray, rejected: np.ndarray, held_c: float | None,
-                 temp_range_c: tuple[float, float]) -> tuple[np.ndarray, float | None]:
-    """The ``out_of_range`` flags (n,) of the temperatures the model saw, and the last accepted reading.
-
-    An accepted row is flagged when its reading is outside ``temp_range_c``; a rejected row when the
-    reading held for it (the last accepted one, ``held_c`` from the previous call at first) is.
-    Before any accepted reading, a rejected row is not flagged: its features are the prior's.
-    """
-    temp_c = np.asarray(temp_c, dtype=np.float64)
-    low, high = temp_range_c
-    if not rejected.any():
-        return (temp_c < low) | (temp_c > high), (float(temp_c[-1]) if len(temp_c) else held_c)
-    index = np.maximum.accumulate(np.where(rejected, -1, np.arange(len(temp_c))))
-    seen = np.where(index >= 0, temp_c[np.maximum(index, 0)], np.nan if held_c is None else held_c)
-    # NaN (no accepted reading yet) compares False: not flagged
-    return (seen < low) | (seen > high), (None if np.isnan(seen[-1]) else float(seen[-1]))

@@ -99,7 +99,6 @@ def test_a_temperature_glitch_leaves_every_other_row_as_the_record_without_it(lo
     assert np.isfinite(out.rate_dps).all()
     # a flagged row is compensated with the prediction (the last accepted row's drift), never the glitch's
     np.testing.assert_array_equal(out.drift_dps[rows], np.repeat(out.drift_dps[start - 1][None], len(rows), 0))
-    assert not out.out_of_range[rows].any() or out.out_of_range[start - 1]
 
 
 @st.composite
@@ -197,7 +196,7 @@ def test_fifty_rows_at_500_degc_cost_no_more_than_losing_them(loaded, cycle_csv)
     intact = compensate_recording(loaded, recording)
     rows = np.arange(30000, 30050)
     out = compensate_recording(loaded, _with(recording, "temp_c", rows, 500.0))
-    assert out.bad_input.sum() == 50 and not out.out_of_range[rows].any()
+    assert np.flatnonzero(out.bad_input).tolist() == rows.tolist()
     before = block_rmse(recording.time_s, intact.rate_dps - true_dps)
     after = block_rmse(recording.time_s, out.rate_dps - true_dps)
     assert np.all(after <= 1.01 * before), (after, before)
