@@ -220,6 +220,10 @@ class DriftData(TrainingData):
             self.val = to_blocks(time_s[val_mask], full_x[val_mask], full_y[val_mask], self.block_s)
             self.val_full = (time_s[val_mask], full_x[val_mask], full_y[val_mask])
         self.temp_range_c = trained_range_c(self.recording.temp_c, accepted)
+        if self.temp_range_c[1] - self.temp_range_c[0] < MIN_TEMP_SPAN_C:  # a glitch gave _check its span
+            raise GyronetError(f"{self.path}: the accepted temperatures span {self.temp_range_c[1] - self.temp_range_c[0]:.3g}"
+                               f" degC ({self.temp_range_c[0]:.6g} .. {self.temp_range_c[1]:.6g}; {self.n_rejected} "
+                               f"glitch row(s) left out); a drift model needs at least {MIN_TEMP_SPAN_C:g} degC of range")
         log.info("training data %s: %d samples at %.3g Hz, %d train / %d validation blocks of %g s",
                  self.path, len(self.recording), self.fs_hz, len(self.train), len(self.val), self.block_s)
 

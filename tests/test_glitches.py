@@ -240,3 +240,16 @@ def test_allan_drops_impossible_gyro_values_as_gaps_in_one_warning(short, glitch
         assert all(np.isfinite(report[axis]["adev_dps"]))
     assert report["segments"]["n_impossible"] == len(set(rows))
     assert report["segments"]["n_samples_total"] == N_ROWS
+
+
+def test_a_glitch_cannot_give_a_flat_record_the_temperature_span_training_needs(tmp_path):
+    rng = np.random.default_rng(0)
+    n = 3000
+    columns = {"time_s": np.arange(n) * 0.5, "temp_c": 25.0 + np.round(rng.normal(0, 0.02, n) / 0.0625) * 0.0625,
+               **{c: rng.normal(0, 0.1, n) for c in GYRO_COLUMNS}}
+    columns["temp_c"][1500] = 40.0  # the raw span is 15 degC; the accepted readings' is 0.125
+    write_recording(tmp_path / "flat.csv", columns, {"fs_hz": 2})
+    from gyronet.errors import GyronetError
+
+    with pytest.raises(GyronetError, match=r"accepted temperatures span 0\.125 degC .*1 glitch row"):
+        DriftData(str(tmp_path / "flat.csv"))
