@@ -253,3 +253,24 @@ def test_a_glitch_cannot_give_a_flat_record_the_temperature_span_training_needs(
 
     with pytest.raises(GyronetError, match=r"accepted temperatures span 0\.125 degC .*1 glitch row"):
         DriftData(str(tmp_path / "flat.csv"))
+
+
+def test_a_glitch_in_one_run_of_a_campaign_stays_out_of_its_box_and_blocks(small_csv, tmp_path):
+    from gyronet.features import PAPER_FEATURES
+    from gyronet.runs import RunsData, load_runs
+
+    recording = load_recording(small_csv)
+    hottest = int(np.argmax(recording.temp_c))
+    damaged = _with(recording, "temp_c", [hottest], recording.temp_c[hottest] + 30.0)
+    write_recording(tmp_path / "glitched.csv", damaged.columns, recording.meta, float_format="%.17g")
+    others = np.arange(len(recording)) != hottest
+    write_recording(tmp_path / "without.csv", recording.slice(others).columns, recording.meta, float_format="%.17g")
+    second = recording.slice(slice(0, 2400))
+    write_recording(tmp_path / "second.csv", second.columns, recording.meta, float_format="%.17g")
+    glitched, without = ([str(tmp_path / name), str(tmp_path / "second.csv")] for name in ("glitched.csv", "without.csv"))
+    a, b = RunsData(load_runs(glitched, PAPER_FEATURES), PAPER_FEATURES), RunsData(load_runs(without, PAPER_FEATURES),
+                                                                                 PAPER_FEATURES)
+    assert a.temp_range_c == b.temp_range_c == (float(recording.temp_c[others].min()),
+                                                float(recording.temp_c[others].max()))
+    np.testing.assert_array_equal(a.train.x, b.train.x)
+    np.testing.assert_array_equal(a.train.y, b.train.y)
