@@ -22,6 +22,7 @@ from typing import Mapping, Sequence
 import numpy as np
 
 from gyronet.errors import GyronetError
+from gyronet.guard import GYRO_RANGE_DPS, bad_gyro
 
 log = logging.getLogger(__name__)
 
@@ -303,7 +304,10 @@ def allan_report(time_s: np.ndarray, rate_dps: np.ndarray, fs_hz: float | None =
         One entry per axis: ``taus_s``, ``adev_dps`` (overlapping), ``n_terms`` and the terms of
         :func:`noise_parameters`; plus ``fs_hz`` and ``segments``. Gaps are never glued: the
         analysis uses the longest continuous segment, and ``segments`` says which (``count``,
-        ``used_time_s``, ``n_samples_used``, ``n_samples_total``, ``largest_gap_s``).
+        ``used_time_s``, ``n_samples_used``, ``n_samples_total``, ``largest_gap_s``). A sample with
+        an impossible gyro value on any axis (``gyronet.guard.bad_gyro``: not finite, beyond 1e4
+        deg/s) is dropped, a gap like any lost sample, counted in ``segments.n_impossible`` and
+        named in one warning: the figures are those of the record without it.
 
     Raises
     ------
@@ -319,6 +323,15 @@ def allan_report(time_s: np.ndarray, rate_dps: np.ndarray, fs_hz: float | None =
     rate = rate.reshape(len(time_s), -1)
     if rate.shape[1] > len(axes):
         raise ValueError(f"rate has {rate.shape[1]} columns but only {len(axes)} axis names")
+    # an impossible value (not finite, beyond any gyro's range) is a lost sample: a gap, as in the compensator
+    impossible = bad_gyro(rate).any(1)
+    n_impossible, n_total = int(np.count_nonzero(impossible)), len(time_s)
+    if n_impossible:
+        first_s = float(time_s[np.argmax(impossible)])
+        time_s, rate = time_s[~impossible], rate[~impossible]
+        if len(time_s) < 3:
+            raise GyronetError(f"Allan analysis: {n_impossible} of {n_total} samples have an impossible gyro value "
+                               f"(not finite or beyond {GYRO_RANGE_DPS:g} deg/s), fewer than 3 are left")
     if fs_hz is None:
         # 7 significant digits: 1 / 0.0100000000000002 (a CSV's rounded times) is 100 Hz.
         fs_hz = float(f"{1.0 / np.median(np.diff(time_s)):.7g}")
@@ -326,7 +339,12 @@ def allan_report(time_s: np.ndarray, rate_dps: np.ndarray, fs_hz: float | None =
     start, stop = max(segments, key=lambda s: s[1] - s[0])
     if stop - start < 3:
         raise GyronetError(f"Allan analysis: the longest stretch without gaps has {stop - start} samples")
-    if len(segments) > 1:
+    if n_impossible:
+        log.warning("%d samples with an impossible gyro value (not finite or beyond %g deg/s, the first at %.6g s) "
+                    "dropped as gaps: Allan analysis uses the longest continuous segment, %.6g..%.6g s (%d of %d "
+                    "samples)", n_impossible, GYRO_RANGE_DPS, first_s, time_s[start], time_s[stop - 1],
+                    stop - start, n_total)
+    elif len(segments) > 1:
         log.warning("record has %d gaps; Allan analysis uses the longest continuous segment, %.6g..%.6g s"
                     " (%d of %d samples)", len(segments) - 1, time_s[start], time_s[stop - 1],
                     stop - start, len(time_s))
@@ -340,8 +358,8 @@ def allan_report(time_s: np.ndarray, rate_dps: np.ndarray, fs_hz: float | None =
     gaps_s = np.diff(time_s)[[s[0] - 1 for s in segments[1:]]]
     report["fs_hz"] = float(fs_hz)
     report["segments"] = {"count": len(segments), "used_time_s": [float(time_s[start]), float(time_s[stop - 1])],
-                          "n_samples_used": int(stop - start), "n_samples_total": int(len(time_s)),
-                          "largest_gap_s": float(gaps_s.max()) if len(gaps_s) else 0.0}
+                          "n_samples_used": int(stop - start), "n_samples_total": int(n_total),
+                          "n_impossible": n_impossible, "largest_gap_s": float(gaps_s.max()) if len(gaps_s) else 0.0}
     return report
 
 

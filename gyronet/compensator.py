@@ -23,6 +23,7 @@ from gyronet.errors import BundleError, GyronetError
 from gyronet.export import read_bundle
 from gyronet.features import FeatureExtractor
 from gyronet.guard import GYRO_RANGE_DPS, bad_gyro
+from gyronet.skipping import stage_skipping
 from gyronet.small_model import SMALL_ROWS, row_model
 
 log = logging.getLogger(__name__)
@@ -192,27 +193,29 @@ class Compensator:
 
         A row whose temperature the feature extractor rejects gets the features' prediction; a gyro
         value that is not finite or beyond ``gyronet.guard.GYRO_RANGE_DPS`` is replaced by that
-        axis's last output before the Kalman stage, so it never enters the filter's state. Both are
-        flagged in ``bad_input`` and counted in ``n_bad_input``.
+        axis's last output. Both are flagged in ``bad_input``, counted in ``n_bad_input`` and kept
+        out of the start-up window and the Kalman state (``gyronet.skipping``): every other row is
+        what the recording without the flagged rows gives.
         """
         features = self.extractor.process(columns)
         drift_dps = self._drift_of(features)
         sigma_dps = self.drift_sigma(features)
         gyro_dps = np.column_stack([np.asarray(columns[c], dtype=np.float64) for c in GYRO_COLUMNS])
-        bad_input = self.extractor.rejected
+        rejected = self.extractor.rejected
         residual_dps = gyro_dps - drift_dps
         # one comparison in the usual case (NaN compares False)
         bad_dps = None if len(gyro_dps) and np.abs(gyro_dps).max() <= GYRO_RANGE_DPS else bad_gyro(gyro_dps)
+        bad_input = rejected if bad_dps is None else rejected | bad_dps.any(1)
         if self.startup is not None:
-            # bad values stay out of the start-up window's mean; _filtered replaces them afterwards
-            valid = None if bad_dps is None else ~bad_dps.any(1)
+            # flagged rows stay out of the start-up window's mean; stage_skipping replaces bad values afterwards
             held_dps = residual_dps if bad_dps is None else np.where(bad_dps, 0.0, residual_dps)
-            residual_dps = self.startup.process(columns["time_s"], held_dps, valid)
-        if bad_dps is None:
-            rate_dps = self._stage(residual_dps)
+            residual_dps = self.startup.process(columns["time_s"], held_dps, ~bad_input if bad_input.any() else None)
+        if bad_input.any():
+            rate_dps, self._last_rate_dps = stage_skipping(self.kalman, residual_dps, bad_input, bad_dps,
+                                                           self._last_rate_dps)
         else:
-            rate_dps = self._filtered(residual_dps, bad_dps)
-            bad_input = bad_input | bad_dps.any(1)
+            rate_dps = self._stage(residual_dps)
+        # from the reading itself, as the C compensator does: a rejected row outside the range carries both flags
         out_of_range = self._outside(np.asarray(columns["temp_c"], dtype=np.float64))
         self.n_out_of_range += int(out_of_range.sum())
         self.n_bad_input += int(np.count_nonzero(bad_input))
@@ -235,8 +238,11 @@ class Compensator:
         if self.startup is not None:
             rate_dps = [r - o for r, o in zip(rate_dps, self.startup.offset_dps.tolist())]
         if self.kalman is not None:
-            rate_dps = self.kalman.process(np.array([rate_dps]))[0].tolist()
-        self._last_rate_dps = rate_dps
+            # a rejected row gets the filter's estimate but stays out of its state (gyronet.skipping)
+            run = self.kalman.peek if rejected else self.kalman.process
+            rate_dps = run(np.array([rate_dps]))[0].tolist()
+        if not rejected:
+            self._last_rate_dps = rate_dps
         out_of_range = self._outside(values["temp_c"])
         self.n_out_of_range += out_of_range
         self.n_bad_input += rejected
@@ -246,19 +252,6 @@ class Compensator:
         """Outside the trained temperatures (an array or a float; NaN is not outside: it is bad input)."""
         low, high = self.temp_range_c
         return (temp_c < low) | (temp_c > high)
-
-    def _filtered(self, rate_dps: np.ndarray, bad_dps: np.ndarray) -> np.ndarray:
-        """The Kalman stage (if any) on the compensated rate, bad values replaced by the last output."""
-        bad_rows = bad_dps.any(1)
-        out = np.empty_like(rate_dps)
-        start = 0
-        for row in np.flatnonzero(bad_rows).tolist():
-            out[start:row] = self._stage(rate_dps[start:row])
-            last = np.zeros(rate_dps.shape[1]) if self._last_rate_dps is None else self._last_rate_dps
-            out[row] = self._stage(np.where(bad_dps[row], last, rate_dps[row])[None])[0]
-            start = row + 1
-        out[start:] = self._stage(rate_dps[start:])
-        return out
 
     def _stage(self, rate_dps: np.ndarray) -> np.ndarray:
         if len(rate_dps) == 0:

@@ -41,6 +41,7 @@ class Recording:
     path: str | None = None
     lines: np.ndarray | None = None  # the file line of each row, when loaded from a CSV
     dropped: dict[str, str] = field(default_factory=dict)  # auxiliary columns not loaded, and why
+    cut_rows: int = 0  # an unterminated last line cut short: dropped with a warning (gyronet.csvtable.tail)
 
     def __len__(self) -> int:
         return len(self.time_s)
@@ -135,7 +136,7 @@ def load_recording(path: str | os.PathLike, required: Sequence[str] = REQUIRED_C
         raise RecordingError(f"{path}: no such file")
     table = parse_table(path, tuple(dict.fromkeys(("time_s", *required))), delimiter, decimal)
     _check_time(path, table.columns["time_s"], table.lines)
-    recording = Recording(table.columns, table.meta, str(path), table.lines, table.dropped)
+    recording = Recording(table.columns, table.meta, str(path), table.lines, table.dropped, table.cut_rows)
     if "fs_hz" in recording.meta:
         recording.fs_hz  # noqa: B018 - refuses a declared rate that is not the recording's
     return recording

@@ -81,10 +81,12 @@ def load_cached(path: str) -> Recording:
 
 
 @functools.lru_cache(maxsize=8)
-def _features_by_key(key: tuple[str, int, int], specs_json: str, fs_hz: float) -> np.ndarray:
-    features = featurize(_load_by_key(key), json.loads(specs_json), fs_hz)
+def _features_by_key(key: tuple[str, int, int], specs_json: str, fs_hz: float) -> tuple[np.ndarray, np.ndarray]:
+    """Features of a file and the mask of its accepted rows (both read-only: shared between runs)."""
+    features, accepted = featurize(_load_by_key(key), json.loads(specs_json), fs_hz, with_accepted=True)
     features.setflags(write=False)  # shared between the runs of one process
-    return features
+    accepted.setflags(write=False)
+    return features, accepted
 
 
 def check_physical(recording: Recording) -> None:
@@ -109,11 +111,25 @@ def check_features_present(recording: Recording, specs: Sequence[Mapping[str, An
                                + (f"which is not usable ({why})" if why else "which the recording lacks"))
 
 
-def featurize(recording: Recording, specs: Sequence[Mapping[str, Any]], fs_hz: float | None = None) -> np.ndarray:
-    """Causal features of a whole recording at its full rate, shape (n, len(specs))."""
+def featurize(recording: Recording, specs: Sequence[Mapping[str, Any]], fs_hz: float | None = None,
+              with_accepted: bool = False) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
+    """Causal features of a whole recording at its full rate, shape (n, len(specs)).
+
+    With ``with_accepted``, also the mask (n,) of the rows the guard accepted: a rejected row
+    (``gyronet.guard``) has the filters' prediction for features and must not be trained on.
+    """
     check_features_present(recording, specs)
     extractor = FeatureExtractor(specs, fs_hz or recording.fs_hz)
-    return extractor.process(recording.columns)
+    features = extractor.process(recording.columns)
+    return (features, ~extractor.rejected) if with_accepted else features
+
+
+def trained_range_c(temp_c: np.ndarray, accepted: np.ndarray) -> tuple[float, float]:
+    """The temperature box a bundle records: the accepted readings' extremes, never a rejected glitch's."""
+    kept = temp_c[accepted]
+    if not kept.size:
+        raise GyronetError("no temperature reading was accepted: every row is an impossible value")
+    return float(kept.min()), float(kept.max())
 
 
 def to_blocks(time_s: np.ndarray, features: np.ndarray, target: np.ndarray, block_s: float) -> Blocks:
@@ -185,20 +201,29 @@ class DriftData(TrainingData):
         self._check(self.recording, val_rec)  # before any work
         self.fs_hz = self.recording.fs_hz
         self.static_rate = static_rate_dps(self.recording, self.static_rate_dps)
-        full_x, full_y = self._full_rate(self.path)
-        time_s = self.recording.time_s
+        # rejected rows (gyronet.guard) are lost samples here as everywhere: not fitted, not in the box
+        full_x, full_y, accepted = self._full_rate(self.path)
+        time_s = self.recording.time_s[accepted]
+        self.n_rejected = len(accepted) - int(np.count_nonzero(accepted))
+        if self.n_rejected:
+            log.warning("%s: %d of %d rows have an impossible temperature (a glitch, gyronet.guard): left out of "
+                        "training and of the trained range", self.path, self.n_rejected, len(accepted))
         if val_rec is not None:
-            val_x, val_y = self._full_rate(self.val_path)
+            val_x, val_y, val_accepted = self._full_rate(self.val_path)
             self.train = to_blocks(time_s, full_x, full_y, self.block_s)
-            self.val = to_blocks(val_rec.time_s, val_x, val_y, self.block_s)
-            self.val_full = (val_rec.time_s, val_x, val_y)
+            self.val = to_blocks(val_rec.time_s[val_accepted], val_x, val_y, self.block_s)
+            self.val_full = (val_rec.time_s[val_accepted], val_x, val_y)
         else:
             train_mask, val_mask = split_by_time(time_s, self.val_fraction, self.n_blocks, self.val_fold)
             # block means never straddle a split edge: average within each side separately
             self.train = to_blocks(time_s[train_mask], full_x[train_mask], full_y[train_mask], self.block_s)
             self.val = to_blocks(time_s[val_mask], full_x[val_mask], full_y[val_mask], self.block_s)
             self.val_full = (time_s[val_mask], full_x[val_mask], full_y[val_mask])
-        self.temp_range_c = (float(self.recording.temp_c.min()), float(self.recording.temp_c.max()))
+        self.temp_range_c = trained_range_c(self.recording.temp_c, accepted)
+        if self.temp_range_c[1] - self.temp_range_c[0] < MIN_TEMP_SPAN_C:  # a glitch gave _check its span
+            raise GyronetError(f"{self.path}: the accepted temperatures span {self.temp_range_c[1] - self.temp_range_c[0]:.3g}"
+                               f" degC ({self.temp_range_c[0]:.6g} .. {self.temp_range_c[1]:.6g}; {self.n_rejected} "
+                               f"glitch row(s) left out); a drift model needs at least {MIN_TEMP_SPAN_C:g} degC of range")
         log.info("training data %s: %d samples at %.3g Hz, %d train / %d validation blocks of %g s",
                  self.path, len(self.recording), self.fs_hz, len(self.train), len(self.val), self.block_s)
 
@@ -231,12 +256,15 @@ class DriftData(TrainingData):
                                f"({float(recording.temp_c.min()):.6g} .. {float(recording.temp_c.max()):.6g}); "
                                f"a drift model needs at least {MIN_TEMP_SPAN_C:g} degC of range")
 
-    def _full_rate(self, path: str) -> tuple[np.ndarray, np.ndarray]:
-        """Features and targets at the full rate, computed once per process for a given file."""
+    def _full_rate(self, path: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Features and targets of the accepted rows at the full rate (computed once per process for a
+        given file), and the accepted mask over the file's rows."""
         recording = load_cached(path)
-        x = _features_by_key(_file_key(path), json.dumps(self.features, sort_keys=True), self.fs_hz)
+        x, accepted = _features_by_key(_file_key(path), json.dumps(self.features, sort_keys=True), self.fs_hz)
         y = recording.gyro_dps - static_rate_dps(recording, self.static_rate_dps)
-        return x, y
+        if accepted.all():
+            return x, y, accepted
+        return x[accepted], y[accepted], accepted
 
 
 
@@ -258,4 +286,4 @@ def residual_block_means(time_s: np.ndarray, residual: np.ndarray, block_s: floa
 
 
 __all__ = ["Blocks", "DriftData", "TrainingData", "block_rmse", "check_features_present", "check_physical", "featurize",
-           "residual_block_means", "static_rate_dps", "to_blocks", "time_blocks"]
+           "residual_block_means", "static_rate_dps", "to_blocks", "time_blocks", "trained_range_c"]

@@ -41,7 +41,10 @@ def kalman_stage(kalman_cfg: Mapping[str, Any] | None, model: torch.nn.Module, d
 
     options = {k: v for k, v in kalman_cfg.items() if k != "enabled"}
     recording = data.recording
-    residual = recording.gyro_dps - Compensator(model, _meta(model, data)).drift(recording.columns)
+    compensator = Compensator(model, _meta(model, data))
+    residual = recording.gyro_dps - compensator.drift(recording.columns)
+    # a rejected row (gyronet.guard) is a lost sample: the noise model is identified without it
+    residual = residual[~compensator.extractor.rejected]
     return KalmanStage(identify(residual, data.fs_hz), **options).to_dict()
 
 

@@ -25,7 +25,7 @@ from torch import nn
 from gyronet.data import Recording
 from gyronet.dataset import (MIN_TEMP_SPAN_C, MIN_TRAIN_BLOCKS, Blocks, DriftData, TrainingData, _features_by_key,
                              _file_key, check_features_present, check_physical, load_cached, static_rate_dps,
-                             to_blocks)
+                             to_blocks, trained_range_c)
 from gyronet.errors import GyronetError
 from gyronet.features import PAPER_FEATURES
 from gyronet.run_offsets import RunOffsets
@@ -43,14 +43,21 @@ class Run:
     targets: np.ndarray  # (n, 3) gyro minus the static rate, deg/s
     index: int  # position in the campaign's list of runs
     path: str
+    # rows the guard accepted (gyronet.guard); features and targets hold those rows only. None: all
+    accepted: np.ndarray | None = None
 
     @property
     def time_s(self) -> np.ndarray:
-        return self.recording.time_s
+        return self.recording.time_s if self.accepted is None else self.recording.time_s[self.accepted]
+
+    @property
+    def temp_c(self) -> np.ndarray:
+        """The accepted temperature readings: a rejected glitch is in no range and no score."""
+        return self.recording.temp_c if self.accepted is None else self.recording.temp_c[self.accepted]
 
     @property
     def temp_range_c(self) -> tuple[float, float]:
-        return float(self.recording.temp_c.min()), float(self.recording.temp_c.max())
+        return trained_range_c(self.temp_c, np.ones(len(self.temp_c), dtype=bool))
 
     def blocks(self, block_s: float) -> Blocks:
         """Block means within this run only."""
@@ -92,9 +99,14 @@ def load_runs(paths: Sequence[str], specs: Sequence[dict], static_rate: Sequence
         name = run_name(str(path))
         name = name if name not in names else f"{name}_{index}"
         names.add(name)
-        features = _features_by_key(_file_key(str(path)), specs_json, fs_hz)
+        features, accepted = _features_by_key(_file_key(str(path)), specs_json, fs_hz)
         targets = rec.gyro_dps - static_rate_dps(rec, static_rate)
-        runs.append(Run(rec, name, features, targets, index, str(path)))
+        if accepted.all():
+            runs.append(Run(rec, name, features, targets, index, str(path)))
+            continue
+        log.warning("%s: %d of %d rows have an impossible temperature (a glitch, gyronet.guard): left out of "
+                    "training and of the trained range", path, int(np.count_nonzero(~accepted)), len(accepted))
+        runs.append(Run(rec, name, features[accepted], targets[accepted], index, str(path), accepted))
     return runs
 
 
@@ -247,7 +259,7 @@ def fit_by_run(model: nn.Module, data: RunsData, optim: Callable | None = None, 
         residual = y - predict(fold_model, x)
         fold_stats.append(error_bar_fit.held_out_stats(fold_model, None, time_s, x, y, fold_data.train.x))
         low, high = fold_data.temp_range_c
-        temp = run.recording.temp_c
+        temp = run.temp_c
         folds.append({"held_out": run.name, "path": run.path,
                       "train_runs": [r.name for r in fold_data.train_runs],
                       **{k: v for k, v in metrics.items() if k.startswith(("val/", "train/"))},

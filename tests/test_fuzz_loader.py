@@ -54,6 +54,27 @@ def _cell_value(text: str) -> float | None:
     return float(text)
 
 
+def _shape(cell: str) -> tuple[int, int, int | None]:
+    """Characters, significant digits and exponent digits (None: no exponent) of a cell."""
+    cell = cell.strip(" \t")
+    mantissa, _, exponent = cell.lower().partition("e")
+    if not re.fullmatch(r"[+-]?\d*\.?\d*", mantissa) or (exponent and not re.fullmatch(r"[+-]?\d*", exponent)):
+        return len(cell), 0, None
+    digits = "".join(ch for ch in mantissa if ch.isdigit()).lstrip("0")
+    return len(cell), len(digits), (len(exponent.lstrip("+-")) if "e" in cell.lower() else None)
+
+
+def _looks_cut(cell: str, above: list[str]) -> bool:
+    """The contract's rule for an unterminated last cell: shorter than every cell above it (up to 1000) in
+    characters, significant digits or exponent digits."""
+    if not above:
+        return False
+    mine, theirs = _shape(cell), [_shape(c) for c in above]
+    exponents = [t[2] for t in theirs if t[2] is not None]
+    return (mine[0] < min(t[0] for t in theirs) or mine[1] < min(t[1] for t in theirs)
+            or (mine[2] is not None and bool(exponents) and mine[2] < min(exponents)))
+
+
 def reference(text: str, quoted: bool) -> tuple[list[str], dict[str, list[float]], dict[str, str], list[int]]:
     """Read a recording's text: (column names kept, values, metadata, file line of each row)."""
     text = text.replace("\r\n", "\n").replace("\r", "\n")
@@ -111,6 +132,9 @@ def reference(text: str, quoted: bool) -> tuple[list[str], dict[str, list[float]
     n = len(names)
     if rows and not terminated and (len(rows[-1]) < n or (len(rows[-1]) == n and not rows[-1][-1].strip(" \t"))):
         rows, numbers = rows[:-1], numbers[:-1]  # a last line cut short
+    elif rows and not terminated and not quoted and len(rows[-1]) == n and _looks_cut(rows[-1][-1], [
+            r[n - 1] for r in rows[-2::-1] if len(r) >= n and r[n - 1].strip(" \t")][:1000]):
+        rows, numbers = rows[:-1], numbers[:-1]  # a last line cut inside its last cell
     if not rows:
         raise Refused("no samples")
     for row in rows:
@@ -274,7 +298,7 @@ def _draw_damage(draw, case: Case) -> None:
         case.cells[row] = case.cells[row][:column] + [draw(st.sampled_from(["7", "", "x"]))] + case.cells[row][column:]
     elif kind == "missing_cell":
         case.cells[row] = case.cells[row][:column] + case.cells[row][column + 1:]
-    elif kind == "bad_cell":
+    elif kind == "bad_cell" and column < len(case.cells[row]):  # an earlier missing_cell may have shortened it
         case.cells[row][column] = draw(st.sampled_from(["nan", "NaN", "inf", "-inf", "", "NA", "null", " ", "1e999",
                                                         "abc", "1,5", "0x10", "1_000"]))
     elif kind == "time" and len(case.cells) > 1 and "time_s" in case.names:  # an earlier damage may rename it

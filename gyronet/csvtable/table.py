@@ -22,6 +22,7 @@ import numpy as np
 import pandas as pd
 
 from gyronet.csvtable.shape import check_shape, scan_bytes, scan_quoted
+from gyronet.csvtable.tail import drop_cut_last_line
 from gyronet.csvtable.text import check_header, read_preamble, read_source, show, sniff, split_header, to_utf8
 from gyronet.errors import RecordingError
 
@@ -42,6 +43,7 @@ class Table:
     meta: dict[str, str]
     lines: np.ndarray  # file line number of each row, 1-based
     dropped: dict[str, str] = field(default_factory=dict)  # auxiliary column -> why it was dropped
+    cut_rows: int = 0  # an unterminated last line cut short, dropped with a warning (0 or 1)
 
 
 def _numbers(cells: Sequence[str], decimal: str) -> tuple[np.ndarray, np.ndarray]:
@@ -96,7 +98,7 @@ def parse_table(path: Path, required: Sequence[str], delimiter: str | None = ","
     meta, header_line, header, body_start = read_preamble(raw, path)
     names = split_header(header, delimiter)
     trailing = check_header(path, names, required, delimiter, header)
-    body = raw[body_start:]
+    body, cut_rows = drop_cut_last_line(path, raw[body_start:], delimiter, len(names), header_line + 1)
     # pandas makes a column of every cell of the first line: a huge one must not get there
     first = re.search(rb"[^ \t\n]", body)
     start = first.start() if first else len(body)
@@ -108,7 +110,7 @@ def parse_table(path: Path, required: Sequence[str], delimiter: str | None = ","
         values = {n: frame[i].to_numpy(dtype=np.float64) for i, n in enumerate(names)}
         numbers = header_line + 1 + np.arange(len(frame))
         columns, dropped = _validate(path, names, set(required), values, wrong, numbers, None)
-        return Table(columns, meta, numbers, dropped)
+        return Table(columns, meta, numbers, dropped, cut_rows)
     quoted = b'"' in body
     if quoted:
         lines = scan_quoted(path, body.decode("utf-8", "replace"), header_line + 1, delimiter)
@@ -132,7 +134,7 @@ def parse_table(path: Path, required: Sequence[str], delimiter: str | None = ","
     numbers = lines.numbers[rows]
     columns, dropped = _validate(path, names, set(required), values, wrong, numbers,
                                  lambda r: lines.cells_of(int(rows[r])))
-    return Table(columns, meta, numbers, dropped)
+    return Table(columns, meta, numbers, dropped, cut_rows + int(len(keep) > 0 and not keep[-1]))
 
 
 def _validate(path: Path, names: list[str], required: set[str], values: dict[str, np.ndarray],

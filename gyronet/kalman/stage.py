@@ -10,6 +10,7 @@ one call on a recording and one call per sample give the same numbers.
 """
 from __future__ import annotations
 
+import copy
 import json
 import logging
 import math
@@ -136,6 +137,19 @@ class KalmanStage:
         # steady state: lfilter coefficients b, a (n_axes, m + 1) and state zi (n_axes, m)
         self._lti: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
         self._gain = self.kf.K.copy()
+
+    def peek(self, rate_dps: np.ndarray) -> np.ndarray:
+        """``process`` without changing the state: the output for samples that must not enter it.
+
+        A flagged sample (``bad_input``: a glitch) gets the filter's estimate from it, while the
+        next samples see the filter as if it had never come.
+        """
+        saved = (copy.deepcopy(self.kf), self.n_samples, self.steady_since, self._gain,
+                 None if self._lti is None else tuple(a.copy() for a in self._lti))
+        try:
+            return self.process(rate_dps)
+        finally:
+            self.kf, self.n_samples, self.steady_since, self._gain, self._lti = saved
 
     def process(self, rate_dps: np.ndarray) -> np.ndarray:
         """Filter the next samples of the compensated rate.
