@@ -43,9 +43,13 @@ def irregular_rows(n: int, step: int, jitter_fraction: float, rng: np.random.Gen
 
 
 def jitter_stamps(time_s: np.ndarray, jitter_fraction: float, rng: np.random.Generator) -> np.ndarray:
-    """Stamps of steady samples off by up to ``jitter_fraction`` of the median period either way (a host
-    clock's jitter); strictly increasing for a fraction under 0.5."""
-    period_s = float(np.median(np.diff(time_s)))
+    """Stamps of samples off by up to ``jitter_fraction`` of the local period either way (a host clock's
+    jitter; the period: the shorter interval beside each sample); strictly increasing for a fraction
+    under 0.5."""
+    intervals = np.diff(time_s)
+    if len(intervals) == 0:
+        return time_s.copy()
+    period_s = np.minimum(np.concatenate([intervals[:1], intervals]), np.concatenate([intervals, intervals[-1:]]))
     return time_s + rng.uniform(-jitter_fraction, jitter_fraction, len(time_s)) * period_s
 
 
