@@ -160,3 +160,35 @@ def test_live_chunked_equals_offline_through_a_rate_change(bundle, fast_sim, tmp
     np.testing.assert_allclose(got, expected, rtol=0, atol=1e-9)
     with pytest.raises(RateChangeError, match=r"from 2 Hz to 5 Hz.*resample=true"):
         live.run_stream(bundle, "/dev/null", tmp_path / "live2.csv", allan_every_s=0, reconnect={"wait_at_start": True})
+
+
+def test_the_c_compensator_flags_the_rate_change_where_compensate_py_refuses_it(bundle, fast_sim, tmp_path):
+    """The C compensator cannot follow a rate (its coefficients are the bundle's): it finds the change with the
+    same stamps and flags GYRONET_RATE_CHANGED from the very sample compensate.py refuses at; before it, C == Python."""
+    import shutil
+
+    from gyronet.deploy.c_export import DRIVER, write_c
+
+    cc = shutil.which("cc") or shutil.which("gcc")
+    if cc is None:
+        pytest.skip("no C compiler (cc or gcc) on this machine")
+    rows = timing.rate_change_rows(20_000, STEP, 2, 0.75)  # 2 Hz (the bundle's) for 2000 s, then 5 Hz
+    columns = {k: v[rows] for k, v in fast_sim.recording.items()}
+    columns["time_s"] = timing.jitter_stamps(columns["time_s"], 0.2, np.random.default_rng(3))
+    with pytest.raises(RateChangeError) as refused:
+        Compensator.load(bundle).process(columns)
+    at = refused.value.change.row
+    write_c(bundle, tmp_path / "c")
+    flags = ["-std=c99", "-Wall", "-Wextra", "-Werror", "-pedantic", "-O2"]
+    subprocess.run([cc, *flags, "-I", str(tmp_path / "c"), str(DRIVER), str(tmp_path / "c" / "gyronet_compensator.c"),
+                    "-lm", "-o", str(tmp_path / "driver")], check=True)
+    names = ["time_s", "temp_c", *GYRO_COLUMNS]
+    np.savetxt(tmp_path / "in.csv", np.column_stack([columns[c] for c in names]), delimiter=",", fmt="%.17g",
+               header=",".join(names), comments="")
+    subprocess.run([str(tmp_path / "driver"), str(tmp_path / "in.csv"), str(tmp_path / "out.csv")], check=True,
+                   capture_output=True)
+    c_out = np.loadtxt(tmp_path / "out.csv", delimiter=",", skiprows=1, ndmin=2)
+    changed = (c_out[:, 3].astype(int) & 4) != 0
+    assert np.flatnonzero(changed)[0] == at and changed[at:].all()
+    before = Compensator.load(bundle).process({k: v[:at] for k, v in columns.items()})
+    assert np.abs(c_out[:at, :3] - before.rate_dps).max() < 1e-4
