@@ -15,7 +15,7 @@ from typing import Any, Callable, Mapping
 import numpy as np
 
 from gyronet.compensator import Compensator
-from gyronet.data import GYRO_COLUMNS, Recording, block_means
+from gyronet.data import Recording, block_means
 from gyronet.errors import GyronetError
 from gyronet.offline import compensate_as_deployed
 from gyronet.sim import timing
@@ -105,4 +105,33 @@ def to_markdown(rows: Mapping[str, Mapping[str, Any]]) -> str:
     return "\n".join(lines)
 
 
-__all__ = ["damaged_cases", "rate_table", "residual_rms_dps", "score", "to_markdown", "GYRO_COLUMNS"]
+def training_rows(train_recording: Mapping[str, np.ndarray], recording: Mapping[str, np.ndarray],
+                  truth: Mapping[str, np.ndarray], step: int, held_out_step: int, out_dir: str | Path,
+                  train_model: Callable[[str, Path], Path]) -> dict[str, list[float]]:
+    """Train on ``train_recording`` (a simulation ``step`` times the bundle's rate) intact and with its rate
+    doubled for the last fifth; each bundle's held-out residual (``recording`` at the bundle's rate)
+    over the intact bundle's (``held_out_step``: its step to the bundle's rate).
+
+    ``train_model(csv_path, run_dir)`` trains one bundle and returns its folder (the caller's recipe).
+    """
+    from gyronet.data import write_recording
+
+    n = len(train_recording["time_s"])
+    half = max(1, step // 2)
+    cases = {"intact": np.arange(0, n, step),
+             "rate doubles for the last fifth (the median stays)": timing.rate_change_rows(n, step, half, 0.8)}
+    every = np.arange(0, len(recording["time_s"]), held_out_step)
+    held_out = {k: v[every] for k, v in recording.items()}
+    held_truth = {k: v[every] for k, v in truth.items()}
+    out_dir = Path(out_dir)
+    results: dict[str, np.ndarray | str] = {}
+    for i, (name, rows) in enumerate(cases.items()):
+        path = out_dir / f"train{i}.csv"
+        out_dir.mkdir(parents=True, exist_ok=True)
+        write_recording(path, {k: v[rows] for k, v in train_recording.items()}, {})
+        results[name] = score(train_model(str(path), out_dir / f"run{i}"), held_out, held_truth)
+    intact = np.asarray(results["intact"])
+    return {name: (got if isinstance(got, str) else (np.asarray(got) / intact).tolist()) for name, got in results.items()}
+
+
+__all__ = ["damaged_cases", "rate_table", "residual_rms_dps", "score", "to_markdown", "training_rows"]
