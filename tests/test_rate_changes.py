@@ -192,3 +192,19 @@ def test_the_c_compensator_flags_the_rate_change_where_compensate_py_refuses_it(
     assert np.flatnonzero(changed)[0] == at and changed[at:].all()
     before = Compensator.load(bundle).process({k: v[:at] for k, v in columns.items()})
     assert np.abs(c_out[:at, :3] - before.rate_dps).max() < 1e-4
+
+
+def test_training_with_a_kalman_stage_refuses_a_rate_change_in_one_line(fast_sim, tmp_path):
+    from gyronet.dataset import DriftData
+    from gyronet.errors import GyronetError
+    from gyronet.model import RBFNet
+    from gyronet.pipeline import kalman_stage
+
+    n = len(fast_sim.recording["time_s"])
+    rows = timing.rate_change_rows(n, STEP, 2, 0.8)
+    path = tmp_path / "train.csv"
+    write_recording(path, {k: v[rows] for k, v in fast_sim.recording.items()}, {})
+    data = DriftData(str(path))
+    model = RBFNet(data.n_features, 3, 4, rbf_inputs=[0], linear=True, temp_degree=3, clamp=True)
+    with pytest.raises(GyronetError, match=r"train.csv: near line \d+ .*from 2 Hz to 5 Hz.*kalman=disabled"):
+        kalman_stage({"enabled": True}, model, data)
