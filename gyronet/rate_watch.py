@@ -29,6 +29,10 @@ log = logging.getLogger(__name__)
 SPAN = 32  # intervals per span: stamp jitter of +-30 % of a period is at most 0.6 / 32 = 1.9 % of a span
 VOTES = 32  # spans voting: a change is declared SPAN + VOTES / 2 samples after it, at the latest
 TOLERANCE = 0.05  # a span this far off (relative) votes for a change; the bundle's own rate tolerance
+# a rate at least twice as fast is plain sooner: FAST intervals in a row under half the period (no loss
+# makes an interval shorter, and jitter of +-30 % cannot make FAST of them in a row that short)
+FAST = 8
+FAST_FACTOR = 0.5
 
 
 class RateChange(NamedTuple):
@@ -85,9 +89,13 @@ class RateWatch:
         first = list(self._votes).index(1 if slow > fast else -1)
         times = list(self._vote_times)
         new_s = (times[-1] - times[first]) / (len(times) - 1 - first)
+        return self._change(row, time_s, new_s, row - (len(times) - 1 - first), times[first])
+
+    def _change(self, row: int, time_s: float, new_s: float, since_row: int, since_time_s: float) -> RateChange:
+        """Adopt the period ``new_s`` (the nominal one if within the tolerance of it) from ``row`` on."""
         if abs(new_s / self.nominal_s - 1.0) <= TOLERANCE:
             new_s = self.nominal_s
-        change = RateChange(row, time_s, 1.0 / self.period_s, 1.0 / new_s, row - (len(times) - 1 - first), times[first])
+        change = RateChange(row, time_s, 1.0 / self.period_s, 1.0 / new_s, since_row, since_time_s)
         self.period_s = new_s
         self._since = 0
         self._votes.clear()
@@ -106,6 +114,10 @@ class RateWatch:
             self._votes.append(self._vote([b - a for a, b in zip(times, times[1:])], times[-1] - times[0]))
             self._vote_times.append(time_s)
             change = self._decide(row, time_s)
+        if change is None and self._since > FAST:
+            times = list(self._times)[-(FAST + 1):]
+            if all(b - a < FAST_FACTOR * self.period_s for a, b in zip(times, times[1:])):
+                change = self._change(row, time_s, (times[-1] - times[0]) / FAST, row - FAST, times[0])
         return change
 
     def scan(self, time_s: np.ndarray) -> list[RateChange]:
@@ -116,7 +128,7 @@ class RateWatch:
         while pos < n:
             # a growing window: a block without a change costs O(n) once, each change O(1024)
             block = time_s[pos:pos + window]
-            has_span, vote = self._block_votes(block)
+            has_span, vote, fast_hit = self._block_votes(block)
             votes = np.concatenate([np.array(self._votes, dtype=np.int64), vote[has_span]])
             slow = np.concatenate([[0], np.cumsum(votes == 1)])
             fast = np.concatenate([[0], np.cumsum(votes == -1)])
@@ -124,23 +136,26 @@ class RateWatch:
             low = np.clip(cast - VOTES, 0, None)
             decides = has_span & (cast - low >= VOTES) & \
                 (np.maximum(slow[cast] - slow[low], fast[cast] - fast[low]) * 2 > VOTES)
-            hits = np.flatnonzero(decides)
-            upto = len(block) if len(hits) == 0 else int(hits[0]) + 1
+            hits = np.flatnonzero(decides | fast_hit)
+            upto = len(block) if len(hits) == 0 else int(hits[0])
             self._commit(block[:upto], has_span[:upto], vote[:upto])
-            if len(hits):
-                change = self._decide(self.n_rows - 1, float(block[upto - 1]))
+            if len(hits):  # the deciding row, by the scalar code
+                change = self.step(float(block[upto]))
                 assert change is not None  # the vectorised votes and the deques agree
                 changes.append(change)
+                upto += 1
             window = 1024 if len(hits) else 2 * window
             pos += upto
         return changes
 
-    def _block_votes(self, time_s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Per new row at the current period: whether it votes, and its vote (as ``_vote``)."""
+    def _block_votes(self, time_s: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Per new row at the current period: whether it votes, its vote (as ``_vote``), and whether it
+        ends FAST short intervals (``step``'s fast path)."""
         past = np.array(self._times, dtype=np.float64)
         times = np.concatenate([past, time_s])
         ends = np.arange(len(past), len(times))
-        has_span = (self._since + np.arange(1, len(time_s) + 1)) > SPAN
+        since = self._since + np.arange(1, len(time_s) + 1)
+        has_span = since > SPAN
         start = np.clip(ends - SPAN, 0, None)
         span_s = (times[ends] - times[start]) / SPAN
         intervals = np.diff(times)
@@ -150,7 +165,10 @@ class RateWatch:
         below = np.concatenate([[0], np.cumsum(intervals < low_s)])
         slow = (span_s > high_s) & (2 * (above[ends] - above[start]) > SPAN)
         fast = (span_s < low_s) & (2 * (below[ends] - below[start]) > SPAN)
-        return has_span, np.where(slow, 1, np.where(fast, -1, 0))
+        short = np.concatenate([[0], np.cumsum(intervals < FAST_FACTOR * self.period_s)])
+        fast_start = np.clip(ends - FAST, 0, None)
+        fast_hit = (since > FAST) & (short[ends] - short[fast_start] == FAST)
+        return has_span, np.where(slow, 1, np.where(fast, -1, 0)), fast_hit
 
     def _commit(self, time_s: np.ndarray, has_span: np.ndarray, vote: np.ndarray) -> None:
         """Take in rows whose votes are known: the state ``step`` on each would leave (but the decision)."""
