@@ -11,7 +11,7 @@ from __future__ import annotations
 import logging
 import math
 from pathlib import Path
-from typing import Any, Mapping, NamedTuple
+from typing import Any, Callable, Mapping, NamedTuple
 
 import numpy as np
 import torch
@@ -23,6 +23,7 @@ from gyronet.errors import BundleError, GyronetError
 from gyronet.export import read_bundle
 from gyronet.features import FeatureExtractor
 from gyronet.guard import GYRO_RANGE_DPS, bad_gyro
+from gyronet.rate_watch import RateChange
 from gyronet.skipping import stage_skipping
 from gyronet.small_model import SMALL_ROWS, row_model
 
@@ -33,6 +34,14 @@ log = logging.getLogger(__name__)
 CHUNK_ROWS = 65536
 # a data rate this far from the bundle's fs_hz (relative) is the bundle's rate with a clock error
 RATE_TOLERANCE = 0.05
+
+
+class RateChangeError(BundleError):
+    """A rate change inside the data that this bundle cannot follow; ``change`` says where."""
+
+    def __init__(self, message: str, change: RateChange):
+        super().__init__(message)
+        self.change = change
 
 
 class Compensated(NamedTuple):
@@ -70,7 +79,9 @@ class Compensator:
         self.model, self.meta = model, dict(meta)
         self.bundle_fs_hz = float(self.meta["fs_hz"])
         self.fs_hz = self.bundle_fs_hz  # the rate the features run at (use_input_rate may change it)
-        self.extractor = FeatureExtractor(self.meta["features"], self.fs_hz)
+        self.resample, self.rate_source = False, "input"  # use_input_rate's: how a rate change is met
+        self.row_name: Callable[[int], str] = lambda row: f"sample {row + 1}"  # offline: the file's line
+        self.extractor = FeatureExtractor(self.meta["features"], self.fs_hz, self._rate_changed)
         self.temp_range_c = tuple(self.meta["temp_range_c"])
         self.kalman = None
         if kalman is not None:
@@ -121,6 +132,7 @@ class Compensator:
         the bundle's rate, and moving an AR(p) model to another rate is not exact.
         """
         fs_hz = float(fs_hz)
+        self.resample, self.rate_source = bool(resample), source
         if not np.isfinite(fs_hz) or fs_hz <= 0:
             raise BundleError(f"{source}: sampling rate {fs_hz!r} Hz is not a rate > 0")
         if abs(fs_hz / self.bundle_fs_hz - 1.0) <= RATE_TOLERANCE:
@@ -141,8 +153,22 @@ class Compensator:
 
     def _run_at(self, fs_hz: float) -> None:
         self.fs_hz = fs_hz
-        self.extractor = FeatureExtractor(self.meta["features"], fs_hz)
+        self.extractor = FeatureExtractor(self.meta["features"], fs_hz, self._rate_changed)
         self.reset()
+
+    def _rate_changed(self, change: RateChange) -> None:
+        """A rate change inside the data (``gyronet.rate_watch``): the filters follow one to the bundle's
+        rate, or with ``resample`` (no Kalman stage) to any; any other is refused in one line."""
+        if abs(change.new_hz / self.bundle_fs_hz - 1.0) <= RATE_TOLERANCE or (self.resample and self.kalman is None):
+            return
+        where = (f"{self.rate_source}: near {self.row_name(change.since_row)} (time_s={change.since_time_s:.6g}): the "
+                 f"sampling rate changes from {change.old_hz:.4g} Hz to {change.new_hz:.4g} Hz")
+        if self.kalman is not None and self.resample:
+            raise RateChangeError(f"{where}, but the bundle {self.source} has a Kalman stage identified at "
+                                  f"{self.bundle_fs_hz:g} Hz, which cannot follow it; split the file there", change)
+        raise RateChangeError(f"{where}, but the bundle {self.source} was trained at {self.bundle_fs_hz:g} Hz (more than "
+                              f"{RATE_TOLERANCE:.0%} apart); pass resample=true to follow it, or split the file there",
+                              change)
 
     def reset(self) -> None:
         """Start a new stream: forget the filter states."""

@@ -17,6 +17,11 @@ Lost samples and glitches:
   state and its features are the prediction, so a glitch corrupts its own row only, flagged in
   ``rejected``. A step that later samples confirm restarts every filter.
 
+Rates: the filters run at a steady sample clock estimated from the stamps (``gyronet.rate_watch``):
+jitter and drift of the stamps are averaged out, and where the rate changes the filters are
+rebuilt for the new period (same time constants in seconds) and carry their state over as across
+a short gap, unless ``on_rate_change`` refuses the change (it may raise).
+
 A feature is a small dict (a "spec") that ``meta.json`` stores, so a bundle rebuilds exactly
 the extractor it was trained with:
 
@@ -40,12 +45,13 @@ from __future__ import annotations
 
 import logging
 import math
-from typing import Any, Mapping, Sequence
+from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 
 from gyronet.filters import Lag, RateTracker
 from gyronet.guard import MAX_TEMP_RATE_C_PER_S, TempGuard, in_sensor_range
+from gyronet.rate_watch import RateChange, RateWatch
 
 log = logging.getLogger(__name__)
 
@@ -105,6 +111,9 @@ class FeatureExtractor:
         Nominal sampling rate the filters are designed for. An interval longer than
         ``GAP_FACTOR / fs_hz`` is a gap: each filter bridges or restarts (see ``Lag`` and
         ``RateTracker``); none carries an error over amplified.
+    on_rate_change
+        Called with each ``RateChange`` before the filters follow it; it may raise to refuse it.
+        None: follow every change. ``rate_changes`` lists those since ``reset()``.
 
     Notes
     -----
@@ -115,7 +124,8 @@ class FeatureExtractor:
     ``n_rejected`` the count since ``reset()``.
     """
 
-    def __init__(self, specs: Sequence[Mapping[str, Any]], fs_hz: float):
+    def __init__(self, specs: Sequence[Mapping[str, Any]], fs_hz: float,
+                 on_rate_change: Callable[[RateChange], None] | None = None):
         self.specs = [dict(s) for s in specs]
         self.names = [feature_name(s) for s in self.specs]
         if len(set(self.names)) != len(self.names):
@@ -128,6 +138,8 @@ class FeatureExtractor:
         self._play: dict[int, float] = {}
         self._time_index = [i for i, s in enumerate(self.specs) if s["kind"] == "time"]
         self.guard = TempGuard()
+        self.watch = RateWatch(self.fs_hz)
+        self.on_rate_change = on_rate_change
         self.reset()
 
     def reset(self) -> None:
@@ -136,6 +148,10 @@ class FeatureExtractor:
         self._start_time_s: float | None = None
         self._last_row: list[float] | None = None  # features of the last accepted row
         self.guard.reset()
+        self.dt_s = 1.0 / self.fs_hz
+        self.watch.reset()
+        self.rate_changes: list[RateChange] = []
+        self._rate_gap = False  # the next accepted row starts a segment at a new period
         self.rejected = np.zeros(0, dtype=bool)
         self.n_rejected = 0
         self._filters.clear()
@@ -168,6 +184,42 @@ class FeatureExtractor:
             return out
         if n == 1:
             return self._process_one(float(time_s[0]), {k: float(columns[k][0]) for k in self._row_columns})
+        first_row = self.watch.n_rows
+        changes = self.watch.scan(time_s)
+        if not changes:
+            return self._process_block(time_s, columns, out)
+        edges = [0, *[c.row - first_row for c in changes], n]
+        rejected = []
+        for change, start, stop in zip([None, *changes], edges[:-1], edges[1:]):
+            if change is not None:
+                self._follow(change)
+            if stop > start:
+                piece = {k: np.asarray(columns[k])[start:stop] for k in self.columns}
+                out[start:stop] = self._process_block(time_s[start:stop], piece, out[start:stop])
+                rejected.append(self.rejected)
+        self.rejected = np.concatenate(rejected)
+        return out
+
+    def _follow(self, change: RateChange) -> None:
+        """Run the filters at the new period from this row on (``on_rate_change`` may refuse: raise)."""
+        if self.on_rate_change is not None:
+            self.on_rate_change(change)
+        log.info("the sampling rate changes from %.6g to %.6g Hz at time_s=%.6f: the feature filters follow",
+                 change.old_hz, change.new_hz, change.time_s)
+        self.rate_changes.append(change)
+        self.dt_s = 1.0 / change.new_hz
+        for i, old in self._filters.items():
+            if isinstance(old, Lag):
+                self._filters[i] = Lag(old.tau_s, self.dt_s)
+                self._filters[i].last_y = old.last_y
+            else:
+                self._filters[i] = RateTracker(old.tau_s, self.dt_s, old.max_slope)
+                self._filters[i].last_level, self._filters[i].last_slope = old.last_level, old.last_slope
+        self._rate_gap = self._last_time_s is not None
+
+    def _process_block(self, time_s: np.ndarray, columns: Mapping[str, np.ndarray], out: np.ndarray) -> np.ndarray:
+        """``process`` on rows of one sample period."""
+        n = len(time_s)
         if self._start_time_s is None:
             self._start_time_s = float(time_s[0])
         source = {k: np.asarray(columns[k], dtype=np.float64) for k in self.columns if k != "time_s"}
@@ -199,12 +251,17 @@ class FeatureExtractor:
         whether it was rejected. ``process`` on a one-row chunk, without arrays (``self.rejected`` is not set)."""
         if self._start_time_s is None:
             self._start_time_s = time_s
+        change = self.watch.step(time_s)
+        if change is not None:
+            self._follow(change)
         temp_c = values["temp_c"]
         valid = in_sensor_range(temp_c) and all(math.isfinite(values[k]) for k in self._row_columns)
         accepted, step = self.guard.step(time_s, temp_c, valid)
         if accepted:
             gap_s = None if self._last_time_s is None else time_s - self._last_time_s
-            event = "power_on" if gap_s is None or step else ("gap" if gap_s > GAP_FACTOR * self.dt_s else None)
+            event = "power_on" if gap_s is None or step else \
+                ("gap" if gap_s > GAP_FACTOR * self.dt_s or self._rate_gap else None)
+            self._rate_gap = False
             row = self._step_row(values, event, None if event == "power_on" else gap_s)
             self._last_time_s, self._last_row = time_s, row
             row = list(row)
@@ -272,9 +329,10 @@ class FeatureExtractor:
             if gap_s is None or step[start]:
                 event = "power_on"
             else:
-                event = "gap" if gap_s > GAP_FACTOR * self.dt_s else None
+                event = "gap" if gap_s > GAP_FACTOR * self.dt_s or (start == 0 and self._rate_gap) else None
             chunk = {k: v[start:stop] for k, v in source.items()}
             out[start:stop] = self._run_segment(chunk, event, gap_s)
+        self._rate_gap = False
         self._last_time_s = float(time_s[-1])
         self._last_row = out[-1].tolist()
         return out

@@ -68,6 +68,7 @@ def compensate_as_deployed(compensator: Compensator, recording: Recording, resam
     except ValueError:
         raise RecordingError(f"{recording.path}: '# fs_hz={recording.meta.get('fs_hz')}' is not a rate in Hz") from None
     compensator.use_input_rate(fs_hz, resample, str(recording.path))
+    compensator.row_name = recording.line_of
     out = compensate_recording(compensator, recording)
     if compensator.startup is not None:
         compensator.startup.require_done(str(recording.path))

@@ -41,11 +41,26 @@ def kalman_stage(kalman_cfg: Mapping[str, Any] | None, model: torch.nn.Module, d
 
     options = {k: v for k, v in kalman_cfg.items() if k != "enabled"}
     recording = data.recording
+    _refuse_rate_changes(recording, data.fs_hz)
     compensator = Compensator(model, _meta(model, data))
     residual = recording.gyro_dps - compensator.drift(recording.columns)
     # a rejected row (gyronet.guard) is a lost sample: the noise model is identified without it
     residual = residual[~compensator.extractor.rejected]
     return KalmanStage(identify(residual, data.fs_hz), **options).to_dict()
+
+
+def _refuse_rate_changes(recording: Any, fs_hz: float) -> None:
+    """The Kalman stage is identified per sample at one rate: a rate change in the record is one line."""
+    from gyronet.errors import GyronetError
+    from gyronet.rate_watch import RateWatch
+
+    changes = [c for c in RateWatch(fs_hz).scan(recording.time_s) if abs(c.new_hz / fs_hz - 1.0) > 0.05]
+    if changes:
+        change = changes[0]
+        raise GyronetError(f"{recording.path}: near {recording.line_of(change.since_row)} (time_s="
+                           f"{change.since_time_s:.6g}): the sampling rate changes from {change.old_hz:.4g} Hz to "
+                           f"{change.new_hz:.4g} Hz, and the Kalman stage is identified per sample at one rate; "
+                           "train with kalman=disabled, or split the file there")
 
 
 def _meta(model: torch.nn.Module, data: DriftData) -> dict[str, Any]:

@@ -39,6 +39,9 @@ _STATE = [
     ("double", "offset_still_s", 1, "start-up offset window"),
     ("double", "offset_start_s", 1, ""),
     ("double", "offset_sum_dps", 3, ""),
+    ("double", "watch_times", 33, "the rate watch (gyronet/rate_watch.py): the last SPAN + 1 stamps, a ring"),
+    ("double", "watch_vote_times", 32, "the stamp of each of the last VOTES voting samples, a ring"),
+    ("double", "watch_period_s", 1, "the sample period the stamps show (0: not yet, the bundle's)"),
     ("float", "last_row", "n_features", "features of the last accepted sample"),
     ("float", "filter", "n_filter", "lag: output as a float pair; rate tracker: last input, level - input, slope"),
     ("float", "play", "n_play", "hysteresis play operators"),
@@ -59,6 +62,12 @@ _STATE = [
     ("int", "guard_have", 1, ""),
     ("int", "n_candidate", 1, ""),
     ("int", "offset_mode", 1, "0 none, 1 armed, 2 in the window, 3 applied"),
+    ("int", "watch_votes", 32, "+1 slower, -1 faster, 0: a ring"),
+    ("int", "watch_head", 1, "the oldest stamp in watch_times"),
+    ("int", "watch_vote_head", 1, "the oldest vote"),
+    ("int", "watch_n_votes", 1, ""),
+    ("int", "watch_since", 1, "samples since init or the last rate change"),
+    ("int", "rate_changed", 1, "1 once the rate changed to one not the bundle's: GYRONET_RATE_CHANGED from then on"),
 ]
 # the template's optional helpers, and what a generated body calls them by
 _HELPERS = {"LAG": "lag_", "TRACKER": "tracker_", "CLAMP": "clampf(", "IPOW": "ipow("}
