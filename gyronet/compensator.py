@@ -153,7 +153,7 @@ class Compensator:
 
     def _run_at(self, fs_hz: float) -> None:
         self.fs_hz = fs_hz
-        self.extractor = FeatureExtractor(self.meta["features"], fs_hz, self._rate_changed)
+        self.extractor = FeatureExtractor(self.meta["features"], fs_hz, self._rate_changed, self.bundle_fs_hz)
         self.reset()
 
     def _rate_changed(self, change: RateChange) -> None:

@@ -125,7 +125,7 @@ class FeatureExtractor:
     """
 
     def __init__(self, specs: Sequence[Mapping[str, Any]], fs_hz: float,
-                 on_rate_change: Callable[[RateChange], None] | None = None):
+                 on_rate_change: Callable[[RateChange], None] | None = None, snap_hz: float | None = None):
         self.specs = [dict(s) for s in specs]
         self.names = [feature_name(s) for s in self.specs]
         if len(set(self.names)) != len(self.names):
@@ -138,7 +138,7 @@ class FeatureExtractor:
         self._play: dict[int, float] = {}
         self._time_index = [i for i, s in enumerate(self.specs) if s["kind"] == "time"]
         self.guard = TempGuard()
-        self.watch = RateWatch(self.fs_hz)
+        self.watch = RateWatch(self.fs_hz, snap_hz)  # snap_hz: the bundle's rate when resampling
         self.on_rate_change = on_rate_change
         self.reset()
 

@@ -53,12 +53,16 @@ class RateWatch:
     Parameters
     ----------
     fs_hz
-        The nominal rate (the bundle's, or the data's): the period it starts at, and the one it
-        snaps back to when a new rate is within ``TOLERANCE`` of it.
+        The nominal rate (the bundle's, or the data's): the period it starts at.
+    snap_hz
+        The rate a new one snaps to when within ``TOLERANCE`` of it (default ``fs_hz``): the
+        bundle's. A data rate adopted by ``resample=true`` is a median over the whole file, which
+        a part at another rate pulls off the true one, so it is not snapped to.
     """
 
-    def __init__(self, fs_hz: float):
+    def __init__(self, fs_hz: float, snap_hz: float | None = None):
         self.nominal_s = 1.0 / float(fs_hz)
+        self.snap_s = self.nominal_s if snap_hz is None else 1.0 / float(snap_hz)
         self.reset()
 
     def reset(self) -> None:
@@ -92,9 +96,9 @@ class RateWatch:
         return self._change(row, time_s, new_s, row - (len(times) - 1 - first), times[first])
 
     def _change(self, row: int, time_s: float, new_s: float, since_row: int, since_time_s: float) -> RateChange:
-        """Adopt the period ``new_s`` (the nominal one if within the tolerance of it) from ``row`` on."""
-        if abs(new_s / self.nominal_s - 1.0) <= TOLERANCE:
-            new_s = self.nominal_s
+        """Adopt the period ``new_s`` (the snap one if within the tolerance of it) from ``row`` on."""
+        if abs(new_s / self.snap_s - 1.0) <= TOLERANCE:
+            new_s = self.snap_s
         change = RateChange(row, time_s, 1.0 / self.period_s, 1.0 / new_s, since_row, since_time_s)
         self.period_s = new_s
         self._since = 0

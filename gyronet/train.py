@@ -31,9 +31,10 @@ def lr_at(step: int, total_steps: int, base_lr: float, warmup_steps: int = 50, f
 
 def predict(model: torch.nn.Module, x: np.ndarray) -> np.ndarray:
     """The model's drift (deg/s, (n, axes)) on feature rows ``x``, without building a graph."""
+    dtype = next((p.dtype for p in model.parameters() if p.is_floating_point()), torch.float64)
     with torch.no_grad():
         # a copy: the cached full-rate features are read-only, which torch warns about
-        return model(torch.tensor(x, dtype=torch.float64)).numpy()
+        return model(torch.tensor(x, dtype=dtype)).numpy()
 
 
 def validation_metrics(model: torch.nn.Module, data: DriftData, full_rate: bool = True) -> dict[str, float]:

@@ -309,7 +309,7 @@ def _draw_damage(draw, case: Case) -> None:
         case.names[column] = case.names[(column + 1) % len(case.names)]
     elif kind == "repeat_header":
         case.cells.insert(row, list(case.names))
-    elif kind == "huge":
+    elif kind == "huge" and column < len(case.cells[row]):  # as bad_cell: the row may be short
         case.cells[row][column] = draw(st.sampled_from(["1" + "0" * 200_000, "x" * 200_000, "0." + "0" * 200_000 + "1"]))
     elif kind == "fs":
         case.meta_lines.append(f"# fs_hz={draw(st.sampled_from(['0', 'nan', 'abc', '-5', '1e9', '']))}")
