@@ -182,3 +182,24 @@ def test_bad_options_are_one_line(tmp_path, monkeypatch, capsys, args, expected)
     code = run_survey(monkeypatch, *TINY[1:], *n, *args, f"hydra.run.dir={tmp_path}")
     err = [line for line in capsys.readouterr().err.splitlines() if line.strip()]
     assert code == 2 and len(err) == 1 and err[0].startswith("error: ") and expected in err[0], err
+
+
+def test_a_killed_worker_is_one_line_that_says_how_to_resume(tmp_path, monkeypatch):
+    """The kernel's OOM killer took a worker after 96 sensors: the command said so with a traceback."""
+    import joblib
+    from joblib.externals.loky.process_executor import TerminatedWorkerError
+
+    from gyronet.survey import SurveySpec, survey
+
+    class Killed:
+        def __init__(self, *args, **kwargs):
+            pass
+
+        def __call__(self, tasks):
+            raise TerminatedWorkerError("A worker process managed by the executor was unexpectedly terminated.")
+
+    monkeypatch.setattr(joblib, "Parallel", Killed)
+    spec = SurveySpec(methods={"PX4-cubic": {}})
+    with pytest.raises(GyronetError, match=r"^a survey worker process was killed .* run the same command again") as err:
+        survey([0, 1], spec, tmp_path, jobs=2, progress=False)
+    assert "\n" not in str(err.value)

@@ -6,6 +6,8 @@ README's table (median, 90th percentile and worst of each sensor's worst axis).
 """
 from __future__ import annotations
 
+import contextlib
+
 import logging
 from pathlib import Path
 from typing import Any, Sequence
@@ -61,7 +63,7 @@ def survey(seeds: Sequence[int], spec: SurveySpec, out_dir: str | Path, jobs: in
     tasks = (delayed(_run_or_fail)(seed, spec, sensor_folder(out_dir, seed), reuse) for seed in seeds)
     results: dict[int, dict[str, Any]] = {}
     bar = tqdm(total=len(seeds), desc="survey", unit="sensor", disable=None if progress is None else not progress)
-    with bar:
+    with bar, _worker_lost(out_dir):
         for result in Parallel(n_jobs=int(jobs), return_as="generator_unordered")(tasks):
             results[int(result["sensor_seed"])] = result
             bar.update(1)
@@ -75,6 +77,19 @@ def survey(seeds: Sequence[int], spec: SurveySpec, out_dir: str | Path, jobs: in
     if n_reused:
         log.info("%d of %d sensors reused from %s", n_reused, len(seeds), out_dir)
     return [results[s] for s in seeds]
+
+
+@contextlib.contextmanager
+def _worker_lost(out_dir: str | Path):
+    """A worker process killed by the system (out of memory: seen after 96 sensors) as one line, not a traceback."""
+    from joblib.externals.loky.process_executor import TerminatedWorkerError
+
+    try:
+        yield
+    except TerminatedWorkerError as err:
+        raise GyronetError(f"a survey worker process was killed by the system ({type(err).__name__}: out of memory?); "
+                           f"the sensors finished so far are kept: run the same command again to resume "
+                           f"(hydra.run.dir={out_dir})") from None
 
 
 def _run_or_fail(sensor_seed: int, spec: SurveySpec, folder: Path, reuse: bool) -> dict[str, Any]:
