@@ -19,6 +19,7 @@ import inspect
 import logging
 import os
 import re
+import subprocess
 import sys
 import types
 import typing
@@ -45,6 +46,22 @@ if _SCRIPTS not in os.environ.get("PYTHONPATH", "").split(os.pathsep):
 log = logging.getLogger(__name__)
 
 CONF_DIR = Path(__file__).resolve().parent.parent / "conf"
+SCRIPTS_DIR = Path(__file__).resolve().parent
+
+
+def run_script(script: str, *overrides: str) -> None:
+    """One step as the README's command for it, in its own interpreter (its own Hydra run).
+
+    A failure is a ``GyronetError`` with the step and the script's own last error line.
+    """
+    from gyronet.errors import GyronetError
+
+    command_line = [sys.executable, str(SCRIPTS_DIR / script), *overrides]
+    log.info("%s", " ".join(command_line[1:]))
+    done = subprocess.run(command_line, capture_output=True, text=True)
+    if done.returncode != 0:
+        last = (done.stderr.strip().splitlines() or ["(no message)"])[-1].removeprefix("error: ")
+        raise GyronetError(f"{script} {' '.join(overrides)} failed: {last}")
 GRAMMAR_URL = "https://hydra.cc/docs/advanced/override_grammar/basic/"
 Task = Callable[[DictConfig], Any]
 _OURS = "GYRONET_CLI_SET_HYDRA_FULL_ERROR"  # marks HYDRA_FULL_ERROR as set by command(), for child processes

@@ -5,7 +5,6 @@ both bundles checked on check.csv against its truth. Writes D/effects_table.md a
 """
 import json
 import logging
-import subprocess
 import sys
 from pathlib import Path
 
@@ -16,7 +15,7 @@ from gyronet.diagnose.effects import check_bundle, effect_row, to_markdown, writ
 from gyronet.errors import GyronetError
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # scripts/_cli.py, also when this file is run by path
-from _cli import command  # noqa: E402
+from _cli import command, run_script  # noqa: E402
 
 log = logging.getLogger(__name__)
 SCRIPTS = Path(__file__).resolve().parent
@@ -45,22 +44,13 @@ def _diagnose(cfg: DictConfig, effect: str, folder: Path) -> dict:
     """The two records of one effect and its diagnosis (kept with ``reuse``): diagnosis.json."""
     for name, history in (("train", cfg.train_history), ("check", cfg.check_history)):
         if not (cfg.reuse and (folder / f"{name}.csv").is_file()):
-            _run("simulate.py", f"output={folder / name}.csv", f"sim/effects={effect}", f"profile={history.profile}",
+            run_script("simulate.py", f"output={folder / name}.csv", f"sim/effects={effect}", f"profile={history.profile}",
                  f"seed={history.seed}", f"sensor_seed={cfg.sensor_seed}", *cfg.simulate)
     if not (cfg.reuse and (folder / "diagnose" / "diagnosis.json").is_file()):
-        _run("diagnose.py", f"data.path={folder / 'train.csv'}", f"hydra.run.dir={folder / 'diagnose'}",
+        run_script("diagnose.py", f"data.path={folder / 'train.csv'}", f"hydra.run.dir={folder / 'diagnose'}",
              *cfg.diagnose)
     return json.loads((folder / "diagnose" / "diagnosis.json").read_text())
 
-
-def _run(script: str, *overrides: str) -> None:
-    """One step as the README's command for it, in its own interpreter (its own Hydra run)."""
-    command_line = [sys.executable, str(SCRIPTS / script), *overrides]
-    log.info("%s", " ".join(command_line[1:]))
-    done = subprocess.run(command_line, capture_output=True, text=True)
-    if done.returncode != 0:
-        last = (done.stderr.strip().splitlines() or ["(no message)"])[-1].removeprefix("error: ")
-        raise GyronetError(f"{script} {' '.join(overrides)} failed: {last}")
 
 
 if __name__ == "__main__":

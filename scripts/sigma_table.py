@@ -5,22 +5,19 @@ their truth; the real cats-tag runs each held out in turn (truth: zero rate). Wr
 .json; see conf/sigma_table.yaml and gyronet/sigma_table.py.
 """
 import logging
-import subprocess
 import sys
 from pathlib import Path
 
 from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig, OmegaConf
 
-from gyronet.errors import GyronetError
 from gyronet.runs import run_name
 from gyronet.sigma_table import score_simulated, score_still, to_markdown, write_table
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # scripts/_cli.py, also when this file is run by path
-from _cli import command  # noqa: E402
+from _cli import command, run_script  # noqa: E402
 
 log = logging.getLogger(__name__)
-SCRIPTS = Path(__file__).resolve().parent
 
 
 @command("sigma_table", schemas={"fs_hz": float, "reuse": bool, "real_still_s": float})
@@ -80,12 +77,7 @@ def _step(cfg: DictConfig, made: Path, script: str, *overrides: str) -> None:
     """One README command in its own interpreter, unless ``reuse`` and what it makes is there."""
     if cfg.reuse and Path(made).is_file():
         return
-    command_line = [sys.executable, str(SCRIPTS / script), *overrides]
-    log.info("%s", " ".join(command_line[1:]))
-    done = subprocess.run(command_line, capture_output=True, text=True)
-    if done.returncode != 0:
-        last = (done.stderr.strip().splitlines() or ["(no message)"])[-1].removeprefix("error: ")
-        raise GyronetError(f"{script} {' '.join(overrides)} failed: {last}")
+    run_script(script, *overrides)
 
 
 if __name__ == "__main__":
