@@ -48,3 +48,11 @@ def bundle(tmp_path_factory, paper_csv) -> Path:
     model = RBFNet(data.n_features, 3, 8, rbf_inputs=[0], linear=True, temp_degree=3, clamp=True)
     train_run(data, model, None, out, {"max_epochs": 300, "progress": False})
     return out / "compensator"
+
+
+def toy_kalman_dict() -> dict:
+    """A 2 Hz Kalman stage with a known AR(1) drift model, for tests that need one without identifying it."""
+    from gyronet.kalman import AxisModel, KalmanModel, KalmanStage
+
+    axis = AxisModel(ar=(0.999,), ar_se=(1e-4,), q_drift_dps2=1e-8, r_dps2=1e-2)
+    return KalmanStage(KalmanModel(fs_hz=2.0, axes=(axis,) * 3)).to_dict()

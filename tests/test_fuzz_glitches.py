@@ -25,16 +25,13 @@ from gyronet.data import GYRO_COLUMNS, Recording, load_recording, write_recordin
 from gyronet.export import load_unfrozen
 from gyronet.fastcsv import write_csv
 from gyronet.guard import CONFIRM_SAMPLES
-from gyronet.kalman import AxisModel, KalmanModel, KalmanStage
+from gyronet.kalman import KalmanStage
 from gyronet.offline import compensate_recording
 from gyronet.startup import StartupOffset
 
+from conftest import toy_kalman_dict
+
 N_ROWS = 800  # 400 s at 2 Hz
-
-
-def _kalman_dict():
-    axis = AxisModel(ar=(0.999,), ar_se=(1e-4,), q_drift_dps2=1e-8, r_dps2=1e-2)
-    return KalmanStage(KalmanModel(fs_hz=2.0, axes=(axis,) * 3)).to_dict()
 
 
 @pytest.fixture(scope="module")
@@ -91,7 +88,7 @@ def _expected(loaded, clean, temp_rows, gyro_rows, kalman, startup):
     if startup:
         rate = StartupOffset(60.0).process(clean.time_s[kept & gyro_kept], rate)
     if kalman:
-        rate = KalmanStage.from_dict(_kalman_dict()).process(rate)
+        rate = KalmanStage.from_dict(toy_kalman_dict()).process(rate)
     return rate, kept & gyro_kept
 
 
@@ -117,7 +114,7 @@ def test_damaged_files_flag_the_damaged_rows_and_leave_every_other_row(loaded, c
     clean_n = clean.slice(slice(0, whole))
     temp_rows = sorted(r for r in temp if r < whole)
     gyro_rows = sorted(r for r in gyro if r < whole)
-    compensator = Compensator(loaded.model, loaded.meta, _kalman_dict() if kalman else None)
+    compensator = Compensator(loaded.model, loaded.meta, toy_kalman_dict() if kalman else None)
     if startup:
         compensator.use_startup(still_s=60.0)
     out = compensate_recording(compensator, recording.slice(slice(0, whole)))
@@ -180,9 +177,9 @@ def _cells(raw: bytes) -> dict[str, list[str]]:
 def test_live_one_row_at_a_time_equals_the_batch_with_glitches(loaded, clean, bundle, damage):
     temp, gyro, _ = damage
     recording = Recording(_damaged_columns(clean, temp, gyro), dict(clean.meta), clean.path).slice(slice(0, 300))
-    batch = Compensator(loaded.model, loaded.meta, _kalman_dict())
+    batch = Compensator(loaded.model, loaded.meta, toy_kalman_dict())
     expected = compensate_recording(batch, recording)
-    live = Compensator(loaded.model, loaded.meta, _kalman_dict())
+    live = Compensator(loaded.model, loaded.meta, toy_kalman_dict())
     assert live.use_small_chunks(load_unfrozen(bundle))  # the live path: process_row in plain floats
     rates, flags = [], []
     for i in range(len(recording)):

@@ -21,16 +21,13 @@ from gyronet.compensator import Compensator
 from gyronet.data import GYRO_COLUMNS, Recording, load_recording, load_truth, write_recording
 from gyronet.dataset import DriftData, block_rmse
 from gyronet.guard import CONFIRM_SAMPLES, SENSOR_RANGE_C
-from gyronet.kalman import AxisModel, KalmanModel, KalmanStage
+from gyronet.kalman import KalmanStage
 from gyronet.offline import compensate_recording
 from gyronet.startup import StartupOffset
 
+from conftest import toy_kalman_dict
+
 N_ROWS = 1200  # 10 min at 2 Hz: the start-up window (60 s) and the Kalman gain's settling fit in it
-
-
-def _kalman_dict():
-    axis = AxisModel(ar=(0.999,), ar_se=(1e-4,), q_drift_dps2=1e-8, r_dps2=1e-2)
-    return KalmanStage(KalmanModel(fs_hz=2.0, axes=(axis,) * 3)).to_dict()
 
 
 @pytest.fixture(scope="module")
@@ -44,7 +41,7 @@ def loaded(bundle):
 
 
 def _make(loaded, kalman, startup):
-    compensator = Compensator(loaded.model, loaded.meta, _kalman_dict() if kalman else None)
+    compensator = Compensator(loaded.model, loaded.meta, toy_kalman_dict() if kalman else None)
     if startup:
         compensator.use_startup(still_s=60.0)
     return compensator
@@ -131,7 +128,7 @@ def test_an_impossible_gyro_value_stays_out_of_the_start_up_window_and_the_kalma
     if startup:
         expected = StartupOffset(60.0).process(short.time_s[others], expected)
     if kalman:
-        expected = KalmanStage.from_dict(_kalman_dict()).process(expected)
+        expected = KalmanStage.from_dict(toy_kalman_dict()).process(expected)
     np.testing.assert_array_equal(out.rate_dps[others], expected)
     np.testing.assert_array_equal(out.drift_dps, plain.drift_dps)
 
