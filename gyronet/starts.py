@@ -163,7 +163,8 @@ def fit_every_start(model: nn.Module, data: DriftData, optim: Callable | None, o
         tried += [f for f, _ in members]
     weights = stack_weights(*(held_out_residuals(t, data) for _, _, t, _ in trials))
     used = [k for k in range(len(trials)) if weights[k].any()]
-    mix_into(model, [trials[k][2] for k in used], weights[used])
+    parts = [trials[k][2] for k in used]
+    mix_into(model, parts, weights[used])
     final = {**min((t[0] for t in trials), key=lambda f: f["val/rmse_dps"]), **validation_metrics(model, data)}
     for a, axis in enumerate(AXES):
         levels = [trials[k][0].get(f"model/level_{axis}") for k in used if weights[k, a] > 0]
@@ -174,7 +175,6 @@ def fit_every_start(model: nn.Module, data: DriftData, optim: Callable | None, o
                  ", ".join(f"{i} {f['val/rmse_dps']:.4g}" for f, i, _, _ in trials),
                  ", ".join(f"{i} " + "/".join(f"{w:.2f}" for w in row) for (_, i, _, _), row in zip(trials, weights)),
                  final["val/rmse_dps"])
-    parts = [trials[k][2] for k in used]
     # the error bar's held-out blocks (gyronet.error_bar_fit), taken before any refit sees them; its
     # members are the validated fits: their spread is what the held-out blocks calibrate
     val_full = getattr(data, "val_full", None)
