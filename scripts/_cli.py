@@ -77,7 +77,7 @@ def command(config_name: str, config_dir: str = "", schemas: Mapping[str, Any] |
         The primary config, ``conf/<config_dir>/<config_name>.yaml``.
     schemas
         What a config node is, by dotted key: the keyword arguments of a callable, by its dotted
-        path (``{"train": "gyronet.train.fit"}``), or a value of a type (``{"seed": int}``). A key
+        path (``{"train": "gyronet.training.train.fit"}``), or a value of a type (``{"seed": int}``). A key
         the callable does not take, or a value of the wrong type, is refused before the task runs.
         Nodes with a ``_target_`` are checked against their target without this.
     required

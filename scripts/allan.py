@@ -12,11 +12,11 @@ import numpy as np
 from omegaconf import DictConfig, OmegaConf
 
 from gyronet.allan import allan_report, format_table, plot_allan, report_to_json
-from gyronet.data import ALLAN_COLUMNS, load_recording
+from gyronet.recordings.data import ALLAN_COLUMNS, load_recording
 from gyronet.errors import GyronetError
-from gyronet.importers.rosbag import is_rosbag, read_rates
-from gyronet.offline import SIGMA_COLUMNS
-from gyronet.sigma_table import allan_sigma_summary
+from gyronet.recordings.importers.rosbag import is_rosbag, read_rates
+from gyronet.bundle.offline import SIGMA_COLUMNS
+from gyronet.training.sigma_table import allan_sigma_summary
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # scripts/_cli.py, also when this file is run by path
 from _cli import command  # noqa: E402

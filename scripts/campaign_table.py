@@ -9,7 +9,7 @@ from omegaconf import DictConfig, OmegaConf
 
 from gyronet.atomic import atomic_output
 from gyronet.errors import GyronetError
-from gyronet.campaign import held_out_table, to_markdown
+from gyronet.analysis.campaign import held_out_table, to_markdown
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # scripts/_cli.py, also when this file is run by path
 from _cli import command  # noqa: E402
@@ -18,7 +18,7 @@ log = logging.getLogger(__name__)
 MODEL_CONF = Path(__file__).resolve().parents[1] / "conf" / "model"
 
 
-@command("campaign", schemas={"train": "gyronet.train.fit", "seed": int}, required=("runs",))
+@command("campaign", schemas={"train": "gyronet.training.train.fit", "seed": int}, required=("runs",))
 def main(cfg: DictConfig) -> None:
     models, data_options = {}, {}
     for name in cfg.models:

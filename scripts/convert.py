@@ -9,7 +9,7 @@ from pathlib import Path
 
 from omegaconf import DictConfig, OmegaConf
 
-from gyronet.importers import FORMATS, convert_with_options
+from gyronet.recordings.importers import FORMATS, convert_with_options
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # scripts/_cli.py, also when this file is run by path
 from _cli import command  # noqa: E402

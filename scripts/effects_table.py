@@ -11,7 +11,7 @@ from pathlib import Path
 from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig, OmegaConf
 
-from gyronet.diagnose.effects import check_bundle, effect_row, to_markdown, write_table
+from gyronet.analysis.diagnose.effects import check_bundle, effect_row, to_markdown, write_table
 from gyronet.errors import GyronetError
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # scripts/_cli.py, also when this file is run by path

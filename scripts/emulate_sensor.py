@@ -4,16 +4,16 @@ from pathlib import Path
 
 from omegaconf import DictConfig, OmegaConf
 
-from gyronet.stream import FaultPlan, LpBusLayout
-from gyronet.stream.lpbus_device import EmulatedLpms
-from gyronet.stream.pty_sensor import emulate_file
+from gyronet.deploy.stream import FaultPlan, LpBusLayout
+from gyronet.deploy.stream.lpbus_device import EmulatedLpms
+from gyronet.deploy.stream.pty_sensor import emulate_file
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # scripts/_cli.py, also when this file is run by path
 from _cli import command  # noqa: E402
 
 
-@command("emulate", schemas={"lpbus": "gyronet.stream.LpBusLayout", "faults": "gyronet.stream.FaultPlan",
-                             "sensor": "gyronet.stream.lpbus_device.EmulatedLpms"}, required=("input",))
+@command("emulate", schemas={"lpbus": "gyronet.deploy.stream.LpBusLayout", "faults": "gyronet.deploy.stream.FaultPlan",
+                             "sensor": "gyronet.deploy.stream.lpbus_device.EmulatedLpms"}, required=("input",))
 def main(cfg: DictConfig) -> None:
     options = OmegaConf.to_container(cfg, resolve=True)
     sensor = options.get("sensor") or {}

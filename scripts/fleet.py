@@ -2,7 +2,7 @@
 
 Hydra's own ``glob()`` picks among a config group's options, not files: ``train.py -m
 'data.path=glob(units/*.csv)'`` launches 0 jobs. This command expands the pattern into units
-(gyronet.fleet) and runs ``scripts/train.py -m`` with ``+unit=<each unit>``,
+(gyronet.training.fleet) and runs ``scripts/train.py -m`` with ``+unit=<each unit>``,
 ``data.path=<folder>/${unit}.csv`` and ``hydra.sweep.subdir=${unit}``. Every other argument is
 train.py's (``model=``, ``train.*``, ``hydra/launcher=joblib|submitit_local|submitit_slurm``,
 ``hydra.launcher.*``, ``hydra.sweep.dir=S``), except ``fleet.spec_range_c=[LOW,HIGH]``, the
@@ -16,7 +16,7 @@ import sys
 from pathlib import Path
 
 from gyronet.errors import EXIT_BAD_INPUT, GyronetError, exit_on_error
-from gyronet.fleet import find_units, fleet_table, sweep_overrides, write_table, write_units
+from gyronet.training.fleet import find_units, fleet_table, sweep_overrides, write_table, write_units
 
 SCRIPTS = Path(__file__).resolve().parent
 TABLE = "fleet_table.md"

@@ -8,7 +8,7 @@ from pathlib import Path
 
 from omegaconf import DictConfig, OmegaConf
 
-from gyronet.fleet import fleet_table, to_markdown, write_table
+from gyronet.training.fleet import fleet_table, to_markdown, write_table
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # scripts/_cli.py, also when this file is run by path
 from _cli import command  # noqa: E402

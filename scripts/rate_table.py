@@ -2,7 +2,7 @@
 
 A 2 Hz bundle (the test suite's recipe: paper profile, sensor 0, 300 steps) is trained once; the
 held-out cycle profile of the same sensor is simulated at 20 Hz and damaged (gyronet/sim/timing.py),
-then compensated as compensate.py runs it (gyronet/rate_table.py). Each figure is the residual
+then compensated as compensate.py runs it (gyronet/analysis/rate_table.py). Each figure is the residual
 against the truth over that of the same samples with the features computed at 20 Hz, x / y / z.
 The training rows train on the paper profile at 4 Hz, intact and with its rate doubled for the
 last fifth, and compare the two bundles on the held-out cycle. The markdown and the JSON go to
@@ -15,7 +15,7 @@ import json
 import logging
 from pathlib import Path
 
-from gyronet.rate_table import rate_table, to_markdown, training_rows
+from gyronet.analysis.rate_table import rate_table, to_markdown, training_rows
 from gyronet.sim import simulate, write_simulation
 
 log = logging.getLogger(__name__)
@@ -23,9 +23,9 @@ log = logging.getLogger(__name__)
 
 def _train(csv: str, run_dir: Path) -> Path:
     """The test suite's small default bundle (tests/conftest.py ``bundle``) on ``csv``."""
-    from gyronet.dataset import DriftData
-    from gyronet.model import RBFNet
-    from gyronet.pipeline import train_run
+    from gyronet.training.dataset import DriftData
+    from gyronet.model.rbf import RBFNet
+    from gyronet.training.pipeline import train_run
 
     data = DriftData(csv)
     model = RBFNet(data.n_features, 3, 8, rbf_inputs=[0], linear=True, temp_degree=3, clamp=True)

@@ -4,15 +4,15 @@ from pathlib import Path
 
 from omegaconf import DictConfig, OmegaConf
 
-from gyronet.stream.signals import stop_on_signals
-from gyronet.stream.lpbus_setup import LpBusSetup
-from gyronet.stream.record import record_stream
+from gyronet.deploy.stream.signals import stop_on_signals
+from gyronet.deploy.stream.lpbus_setup import LpBusSetup
+from gyronet.deploy.stream.record import record_stream
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # scripts/_cli.py, also when this file is run by path
 from _cli import command  # noqa: E402
 
 
-@command("record", "deploy", schemas={"lpbus": "gyronet.stream.lpbus_setup.LpBusSetup"}, required=("port", "output"))
+@command("record", "deploy", schemas={"lpbus": "gyronet.deploy.stream.lpbus_setup.LpBusSetup"}, required=("port", "output"))
 def main(cfg: DictConfig) -> None:
     options = OmegaConf.to_container(cfg, resolve=True)
     with stop_on_signals() as stop:  # Ctrl-C and SIGTERM end the recording with whole lines

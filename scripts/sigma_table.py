@@ -2,7 +2,7 @@
 
 Simulated sensors trained on the paper's staircase and compensated on other histories, scored against
 their truth; the real cats-tag runs each held out in turn (truth: zero rate). Writes D/sigma_table.md and
-.json; see conf/sigma_table.yaml and gyronet/sigma_table.py.
+.json; see conf/sigma_table.yaml and gyronet/training/sigma_table.py.
 """
 import logging
 import sys
@@ -11,8 +11,8 @@ from pathlib import Path
 from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig, OmegaConf
 
-from gyronet.runs import run_name
-from gyronet.sigma_table import score_simulated, score_still, to_markdown, write_table
+from gyronet.training.runs import run_name
+from gyronet.training.sigma_table import score_simulated, score_still, to_markdown, write_table
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # scripts/_cli.py, also when this file is run by path
 from _cli import command, run_script  # noqa: E402

@@ -5,7 +5,7 @@ staircase at 2 Hz, trained with the default model (in-process, so the held-out s
 hand), and checked on a random (seed 5) and a cycle (seed 6) history against the truth. Printed: the share
 of 60 s blocks within 1 sigma per sensor, history and axis for three calibration rules (floor and scale by
 maximum likelihood; floor alone, spread at face value; the floor as the held-out RMS, no spread) and five
-extrapolation shares (gyronet.error_bar_fit.EXTRAPOLATION_SHARE). Records go to outputs/sigma_variants/.
+extrapolation shares (gyronet.training.error_bar_fit.EXTRAPOLATION_SHARE). Records go to outputs/sigma_variants/.
 """
 import sys
 from pathlib import Path
@@ -14,12 +14,12 @@ import numpy as np
 from hydra.utils import instantiate
 from omegaconf import OmegaConf
 
-from gyronet import error_bar_fit
-from gyronet.compensator import Compensator
-from gyronet.data import AXES, load_recording, load_truth
-from gyronet.dataset import DriftData
-from gyronet.pipeline import train_run
-from gyronet.sigma_table import block_coverage
+from gyronet.training import error_bar_fit
+from gyronet.bundle.compensator import Compensator
+from gyronet.recordings.data import AXES, load_recording, load_truth
+from gyronet.training.dataset import DriftData
+from gyronet.training.pipeline import train_run
+from gyronet.training.sigma_table import block_coverage
 from gyronet.sim import simulate, write_simulation
 
 ROOT = Path("outputs/sigma_variants")

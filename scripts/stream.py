@@ -4,14 +4,14 @@ from pathlib import Path
 
 from omegaconf import DictConfig, OmegaConf
 
-from gyronet.stream.live import run_stream, stop_on_signals
-from gyronet.stream.lpbus_setup import LpBusSetup
+from gyronet.deploy.stream.live import run_stream, stop_on_signals
+from gyronet.deploy.stream.lpbus_setup import LpBusSetup
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # scripts/_cli.py, also when this file is run by path
 from _cli import command  # noqa: E402
 
 
-@command("stream", "deploy", schemas={"lpbus": "gyronet.stream.lpbus_setup.LpBusSetup"},
+@command("stream", "deploy", schemas={"lpbus": "gyronet.deploy.stream.lpbus_setup.LpBusSetup"},
          required=("model", "port", "output"))
 def main(cfg: DictConfig) -> None:
     options = OmegaConf.to_container(cfg, resolve=True)

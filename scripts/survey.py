@@ -13,7 +13,7 @@ from omegaconf import DictConfig, OmegaConf
 
 from gyronet.errors import GyronetError
 from gyronet.sim.survey_sensor import check_distribution
-from gyronet.survey import TRAIN_PATH, History, SurveySpec, summarize, survey, to_markdown, write_outputs
+from gyronet.analysis.survey import TRAIN_PATH, History, SurveySpec, summarize, survey, to_markdown, write_outputs
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # scripts/_cli.py, also when this file is run by path
 from _cli import CONF_DIR, command  # noqa: E402
@@ -33,8 +33,8 @@ def _method(model: str, overrides: list) -> dict:
 
 @command("survey", schemas={"n_sensors": int, "first_seed": int, "jobs": int, "fs_hz": float, "startup_s": float,
                             "reuse": bool, "keep_records": bool, "train_overrides": list,
-                            "train_history": "gyronet.survey.History", "check_history": "gyronet.survey.History",
-                            "goals": "gyronet.survey.table.goal_keys"})
+                            "train_history": "gyronet.analysis.survey.History", "check_history": "gyronet.analysis.survey.History",
+                            "goals": "gyronet.analysis.survey.table.goal_keys"})
 def main(cfg: DictConfig) -> None:
     if cfg.n_sensors < 1:
         raise GyronetError(f"n_sensors must be at least 1, got {cfg.n_sensors}")

@@ -6,7 +6,7 @@ from pathlib import Path
 
 from omegaconf import DictConfig, OmegaConf
 
-from gyronet.table import PAPER_TABLE_1, held_out_paths, runs_to_markdown, table_rows, table_runs, to_markdown
+from gyronet.analysis.table import PAPER_TABLE_1, held_out_paths, runs_to_markdown, table_rows, table_runs, to_markdown
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # scripts/_cli.py, also when this file is run by path
 from _cli import command  # noqa: E402

@@ -6,15 +6,15 @@ from hydra.core.hydra_config import HydraConfig
 from hydra.utils import instantiate
 from omegaconf import DictConfig, OmegaConf
 
-from gyronet.pipeline import train_run
-from gyronet.tb import make_writer
+from gyronet.training.pipeline import train_run
+from gyronet.figures.tb import make_writer
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # scripts/_cli.py, also when this file is run by path
 from _cli import command  # noqa: E402
 
 
 # a bad input is one line and exit 2; in a sweep it raises, and the sweeper scores the job inf
-@command("train", schemas={"train": "gyronet.train.fit", "seed": int, "eval.paths": list, "eval.block_s": float})
+@command("train", schemas={"train": "gyronet.training.train.fit", "seed": int, "eval.paths": list, "eval.block_s": float})
 def main(cfg: DictConfig) -> float:
     data = instantiate(cfg.data)
     model = instantiate(cfg.model, n_inputs=data.n_features)

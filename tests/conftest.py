@@ -39,9 +39,9 @@ def cycle_csv(tmp_path_factory) -> Path:
 @pytest.fixture(scope="session")
 def bundle(tmp_path_factory, paper_csv) -> Path:
     """A small default-model bundle trained on ``paper_csv``, for the tests that consume bundles."""
-    from gyronet.dataset import DriftData
-    from gyronet.model import RBFNet
-    from gyronet.pipeline import train_run
+    from gyronet.training.dataset import DriftData
+    from gyronet.model.rbf import RBFNet
+    from gyronet.training.pipeline import train_run
 
     out = tmp_path_factory.mktemp("run")
     data = DriftData(str(paper_csv))
@@ -52,7 +52,7 @@ def bundle(tmp_path_factory, paper_csv) -> Path:
 
 def toy_kalman_dict() -> dict:
     """A 2 Hz Kalman stage with a known AR(1) drift model, for tests that need one without identifying it."""
-    from gyronet.kalman import AxisModel, KalmanModel, KalmanStage
+    from gyronet.model.kalman import AxisModel, KalmanModel, KalmanStage
 
     axis = AxisModel(ar=(0.999,), ar_se=(1e-4,), q_drift_dps2=1e-8, r_dps2=1e-2)
     return KalmanStage(KalmanModel(fs_hz=2.0, axes=(axis,) * 3)).to_dict()

@@ -12,7 +12,7 @@ import pytest
 
 from gyronet.allan import (allan_report, continuous_segments, log_taus, noise_parameters, oadev, plot_allan,
                            report_to_json)
-from gyronet.data import write_recording
+from gyronet.recordings.data import write_recording
 from gyronet.errors import GyronetError
 
 allantools = pytest.importorskip("allantools")

@@ -6,16 +6,16 @@ import numpy as np
 import pytest
 import torch
 
-from gyronet.baselines import TempPolynomial
-from gyronet.compensator import Compensated
-from gyronet.data import AXES, load_recording, load_truth
-from gyronet.dataset import DriftData, block_rmse
+from gyronet.model.baselines import TempPolynomial
+from gyronet.bundle.compensator import Compensated
+from gyronet.recordings.data import AXES, load_recording, load_truth
+from gyronet.training.dataset import DriftData, block_rmse
 from gyronet.deploy.as_flown import (difference_error, is_px4_cubic, minimax_cubic, px4_calibrated_error,
                                      px4_firmware_output, px4_published_index, px4_schedule_error)
 from gyronet.deploy.params import ardupilot_cubic, bundle_curve, export_params, fit_cubic, px4_cubic, read_params
 from gyronet.errors import GyronetError
-from gyronet.pipeline import train_run
-from gyronet.table import table_rows
+from gyronet.training.pipeline import train_run
+from gyronet.analysis.table import table_rows
 
 
 def test_schedule_on_a_ramp_crossing_the_threshold_worked_by_hand():

@@ -63,7 +63,7 @@ def test_row_keeps_extra_figures(harness):
 
 def test_log_times_reads_job_and_hydra_lines(harness, tmp_path):
     log = tmp_path / "train.log"
-    log.write_text("[2026-01-02 03:04:05,250][gyronet.dataset][INFO] - training data F.csv: 10 samples\n"
+    log.write_text("[2026-01-02 03:04:05,250][gyronet.training.dataset][INFO] - training data F.csv: 10 samples\n"
                    "[2026-01-02 03:04:07,000][HYDRA] Launching jobs, sweep output dir : S\n"
                    "[2026-01-02 03:04:09,500][HYDRA] Launching jobs, sweep output dir : S\n")
     marks = harness.log_times(log, {"data": r"^training data ", "launch": r"^Launching jobs", "none": "^nope"})

@@ -11,11 +11,11 @@ import numpy as np
 import pytest
 import torch
 
-from gyronet.baselines import TempPolynomial
-from gyronet.compensator import Compensator
-from gyronet.data import load_recording
+from gyronet.model.baselines import TempPolynomial
+from gyronet.bundle.compensator import Compensator
+from gyronet.recordings.data import load_recording
 from gyronet.errors import BundleError
-from gyronet.export import read_bundle, save_bundle, sha256_file
+from gyronet.bundle.io import read_bundle, save_bundle, sha256_file
 
 ROOT = Path(__file__).resolve().parents[1]
 N_ROWS = 400
@@ -35,9 +35,9 @@ def reference(bundle, columns):
 @pytest.fixture(scope="module")
 def kalman_bundle(tmp_path_factory, paper_csv):
     """A tiny bundle with a Kalman stage."""
-    from gyronet.dataset import DriftData
-    from gyronet.model import RBFNet
-    from gyronet.pipeline import train_run
+    from gyronet.training.dataset import DriftData
+    from gyronet.model.rbf import RBFNet
+    from gyronet.training.pipeline import train_run
 
     out = tmp_path_factory.mktemp("kalman_run")
     data = DriftData(str(paper_csv))

@@ -14,8 +14,8 @@ import numpy as np
 import pytest
 import torch
 
-from gyronet.compensator import Compensator
-from gyronet.data import GYRO_COLUMNS, load_recording, write_recording
+from gyronet.bundle.compensator import Compensator
+from gyronet.recordings.data import GYRO_COLUMNS, load_recording, write_recording
 from gyronet.deploy.c_export import DRIVER, write_c
 from gyronet.errors import BundleError
 
@@ -29,8 +29,8 @@ pytestmark = pytest.mark.skipif(CC is None, reason="no C compiler (cc or gcc) on
 
 
 def _train(out: Path, csv: Path, model_factory, features=None, kalman=None, for_bundle=False) -> Path:
-    from gyronet.dataset import DriftData
-    from gyronet.pipeline import train_run
+    from gyronet.training.dataset import DriftData
+    from gyronet.training.pipeline import train_run
 
     data = DriftData(str(csv)) if features is None else DriftData(str(csv), features=features)
     kalman_cfg = None if kalman is None else {"enabled": True, **kalman}
@@ -41,8 +41,8 @@ def _train(out: Path, csv: Path, model_factory, features=None, kalman=None, for_
 
 def _train_members(out: Path, csv: Path) -> Path:
     """The default's three starts, each kept (equal weights): an error bar with members in the bundle."""
-    from gyronet import starts
-    from gyronet.model import RBFNet
+    from gyronet.training import starts
+    from gyronet.model.rbf import RBFNet
 
     with pytest.MonkeyPatch.context() as patch:
         patch.setattr(starts, "stack_weights", lambda *residuals: np.full((len(residuals), 3), 1.0 / len(residuals)))
@@ -64,8 +64,8 @@ def aux_csv(tmp_path_factory, paper_csv) -> Path:
 @pytest.fixture(scope="module")
 def bundles(tmp_path_factory, bundle, paper_csv, aux_csv) -> dict:
     """One bundle of every kind: default RBFNet, with Kalman stages, the paper's RBF, poly3, lsq, every feature kind."""
-    from gyronet.baselines import LinearFeatures, TempPolynomial
-    from gyronet.model import RBFNet
+    from gyronet.model.baselines import LinearFeatures, TempPolynomial
+    from gyronet.model.rbf import RBFNet
 
     root = tmp_path_factory.mktemp("c_bundles")
     default = lambda n: RBFNet(n, 3, 8, rbf_inputs=[0], linear=True, temp_degree=3, clamp=True)  # noqa: E731
@@ -174,7 +174,7 @@ def test_c_matches_compensator_on_a_hard_recording(kind, bundles, paper_csv, aux
 
 def test_c_matches_compensate_py_with_a_startup_offset(bundles, paper_csv, tmp_path):
     """compensate_file (compensate.py's code) on a CSV with gaps and startup.still_s, against the C."""
-    from gyronet.offline import compensate_file
+    from gyronet.bundle.offline import compensate_file
 
     columns = _columns(paper_csv)
     keep = np.ones(len(columns["time_s"]), dtype=bool)
@@ -211,7 +211,7 @@ def test_state_size_and_symbols(bundles, tmp_path):
 
 def test_unknown_model_class_is_one_line(bundle, tmp_path):
     """A bundle whose model is a class the generator does not know (a future PX4 polynomial) is refused in one line."""
-    from gyronet.export import load_bundle, save_bundle
+    from gyronet.bundle.io import load_bundle, save_bundle
 
     class TempCubicPx4(torch.nn.Module):
         def __init__(self):
@@ -233,7 +233,7 @@ def test_unknown_model_class_is_one_line(bundle, tmp_path):
 def test_a_changed_model_form_is_refused(bundle):
     """If RBFNet's forward gains a term the generator does not know, the export fails instead of writing wrong C."""
     from gyronet.deploy.c._model import model_code
-    from gyronet.model import RBFNet
+    from gyronet.model.rbf import RBFNet
 
     net = RBFNet(3, 3, 4, rbf_inputs=[0], linear=True, temp_degree=3, clamp=True)
     with torch.no_grad():
@@ -285,10 +285,10 @@ def test_bench_row_quick(tmp_path):
 @pytest.mark.slow
 def test_float32_at_1khz_with_a_long_lag_after_11_days(tmp_path):
     """1 kHz, a 600 s lag, a clock at 1e6 s: where float32 state or time would break, the C still agrees."""
-    from gyronet.baselines import LinearFeatures
-    from gyronet.compensator import build_meta
-    from gyronet.export import save_bundle
-    from gyronet.features import feature_name
+    from gyronet.model.baselines import LinearFeatures
+    from gyronet.bundle.compensator import build_meta
+    from gyronet.bundle.io import save_bundle
+    from gyronet.model.features import feature_name
 
     fs_hz, n = 1000.0, 600_000
     specs = [{"kind": "temp"}, {"kind": "rate", "tau_s": 5.0}, {"kind": "product"}, {"kind": "lag", "tau_s": 600.0}]

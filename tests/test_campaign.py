@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 from hydra.utils import instantiate
 
-from gyronet.baselines import TempPolynomial
-from gyronet.campaign import floor_dps, held_out_table, to_markdown, touched_blocks
-from gyronet.data import Recording
+from gyronet.model.baselines import TempPolynomial
+from gyronet.analysis.campaign import floor_dps, held_out_table, to_markdown, touched_blocks
+from gyronet.recordings.data import Recording
 from gyronet.errors import GyronetError
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts"))
@@ -47,7 +47,7 @@ def test_a_handled_block_is_found_from_the_accelerometer_or_the_gyro():
 
 def test_a_px4_yaml_brings_its_own_data_settings_and_a_bare_one_none():
     spec, options = campaign_table._model_yaml("px4")
-    assert spec._target_ == "gyronet.px4.Px4Cubic"
+    assert spec._target_ == "gyronet.model.px4.Px4Cubic"
     assert options == {"features": [{"kind": "temp"}], "block_s": 1e-6, "run_offsets": False, "in_sample": True}
     spec, options = campaign_table._model_yaml("poly3")
     assert "_target_" in spec and options == {}

@@ -5,12 +5,12 @@ import numpy as np
 import pytest
 import torch
 
-from gyronet import capacity
-from gyronet.data import load_truth
-from gyronet.dataset import Blocks, DriftData
-from gyronet.model import RBFNet
+from gyronet.training import capacity
+from gyronet.recordings.data import load_truth
+from gyronet.training.dataset import Blocks, DriftData
+from gyronet.model.rbf import RBFNet
 from gyronet.sim import simulate, write_simulation
-from gyronet.train import fit
+from gyronet.training.train import fit
 
 
 def _run(temp_c, bump_c, rng):

@@ -16,9 +16,9 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-PRELOAD = ("torch", "hydra", "matplotlib.pyplot", "gyronet.pipeline", "gyronet.diagnose", "gyronet.offline",
-           "gyronet.table", "gyronet.allan", "gyronet.sim", "gyronet.importers", "gyronet.stream.live",
-           "gyronet.stream.pty_sensor", "gyronet.tb")
+PRELOAD = ("torch", "hydra", "matplotlib.pyplot", "gyronet.training.pipeline", "gyronet.analysis.diagnose", "gyronet.bundle.offline",
+           "gyronet.analysis.table", "gyronet.allan", "gyronet.sim", "gyronet.recordings.importers", "gyronet.deploy.stream.live",
+           "gyronet.deploy.stream.pty_sensor", "gyronet.figures.tb")
 
 
 # ---------------------------------------------------------------- the zygote
@@ -231,7 +231,7 @@ def test_help_and_show_config_still_work(results):
     assert results["train-help"]["code"] == 0, results["train-help"]["stderr"]
     assert "== Configuration groups ==" in results["train-help"]["stdout"]
     shown = results["train-cfg_job"]
-    assert shown["code"] == 0 and "_target_: gyronet.runs.training_data" in shown["stdout"], shown["stderr"]
+    assert shown["code"] == 0 and "_target_: gyronet.training.runs.training_data" in shown["stdout"], shown["stderr"]
 
 
 def test_good_runs_and_multiruns_still_work(results):

@@ -2,12 +2,12 @@
 import numpy as np
 import pytest
 
-from gyronet.compensator import Compensated, Compensator
-from gyronet.data import GYRO_COLUMNS, block_means, load_recording, load_truth
-from gyronet.dataset import block_rmse
-from gyronet.guard import GYRO_RANGE_DPS
-from gyronet.kalman import AxisModel, KalmanModel, KalmanStage
-from gyronet.offline import SIGMA_COLUMNS, compensate_recording, output_columns
+from gyronet.bundle.compensator import Compensated, Compensator
+from gyronet.recordings.data import GYRO_COLUMNS, block_means, load_recording, load_truth
+from gyronet.training.dataset import block_rmse
+from gyronet.recordings.guard import GYRO_RANGE_DPS
+from gyronet.model.kalman import AxisModel, KalmanModel, KalmanStage
+from gyronet.bundle.offline import SIGMA_COLUMNS, compensate_recording, output_columns
 
 TRUE_RATE = [f"true_rate_{axis}_dps" for axis in "xyz"]
 

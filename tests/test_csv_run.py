@@ -1,4 +1,4 @@
-"""The CSV flood path (``CsvLineParser(blocks=True)``, :mod:`gyronet.stream.csv_run`) against the per-line path.
+"""The CSV flood path (``CsvLineParser(blocks=True)``, :mod:`gyronet.deploy.stream.csv_run`) against the per-line path.
 
 A stream of good lines with damage of every kind (flipped bytes, cut lines, garbage, cells too
 many or too few, not numbers the way ``float`` would take them, time going back a little and a
@@ -15,9 +15,9 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from gyronet.stream import CsvLineParser, Fault, Sample, SampleCheck, encode_csv_header
-from gyronet.stream.csv_run import MIN_RUN_LINES, LineRun
-from gyronet.stream.events import SampleBlock, as_samples
+from gyronet.deploy.stream import CsvLineParser, Fault, Sample, SampleCheck, encode_csv_header
+from gyronet.deploy.stream.csv_run import MIN_RUN_LINES, LineRun
+from gyronet.deploy.stream.events import SampleBlock, as_samples
 
 NAMES = ["time_s", "temp_c", "gyro_x_dps", "gyro_y_dps", "gyro_z_dps", "acc_x_g"]
 NEEDED = NAMES[:5]

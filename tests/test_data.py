@@ -9,7 +9,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from gyronet.data import (GYRO_COLUMNS, REQUIRED_COLUMNS, block_means, load_recording, split_by_time,
+from gyronet.recordings.data import (GYRO_COLUMNS, REQUIRED_COLUMNS, block_means, load_recording, split_by_time,
                           truth_path, write_recording)
 from gyronet.errors import RecordingError
 
@@ -105,7 +105,7 @@ def test_block_means_and_truth_path(tmp_path):
 
 
 def test_compensated_files_keep_twelve_significant_digits(tmp_path):
-    from gyronet.offline import write_compensated
+    from gyronet.bundle.offline import write_compensated
 
     rng = np.random.default_rng(0)
     columns = {"time_s": np.arange(5000) / 10.0, "gyro_x_dps": rng.normal(0, 0.3, 5000),
@@ -156,7 +156,7 @@ def test_a_huge_one_line_file_is_refused_at_once(tmp_path, kind):
     # regression fails on the timeout instead of hanging the suite
     path = tmp_path / "line.csv"
     path.write_text(HUGE_LINES[kind]())
-    code = ("import sys; from gyronet.data import load_recording; from gyronet.errors import RecordingError\n"
+    code = ("import sys; from gyronet.recordings.data import load_recording; from gyronet.errors import RecordingError\n"
             f"try:\n    load_recording({str(path)!r})\nexcept RecordingError as e:\n    print(e)\n")
     proc = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=20,
                           env={**os.environ, "PYTHONPATH": str(ROOT)})

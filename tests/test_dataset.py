@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 import torch
 
-from gyronet import dataset
-from gyronet.data import write_recording
-from gyronet.dataset import MIN_TEMP_SPAN_C, DriftData
+from gyronet.training import dataset
+from gyronet.recordings.data import write_recording
+from gyronet.training.dataset import MIN_TEMP_SPAN_C, DriftData
 from gyronet.errors import GyronetError, RecordingError
 
 FS_HZ = 1.0
@@ -116,8 +116,8 @@ def test_a_record_with_a_one_hour_break_trains(tmp_path):
 
 
 def test_a_fit_that_diverges_says_so_in_one_line(tmp_path):
-    from gyronet.model import RBFNet
-    from gyronet.train import fit
+    from gyronet.model.rbf import RBFNet
+    from gyronet.training.train import fit
 
     data = DriftData(_write(tmp_path, "ok.csv", _record()))
     model = RBFNet(data.n_features, 3, 8, rbf_inputs=[0], linear=True, temp_degree=3, clamp=True)

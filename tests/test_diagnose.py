@@ -13,13 +13,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from gyronet.compensator import Compensator
-from gyronet.data import AXES, Recording, load_recording
-from gyronet.diagnose import (CandidateGrid, ScreenRows, candidate_specs, diagnose, effect_kind, filter_tau, screen,
+from gyronet.bundle.compensator import Compensator
+from gyronet.recordings.data import AXES, Recording, load_recording
+from gyronet.analysis.diagnose import (CandidateGrid, ScreenRows, candidate_specs, diagnose, effect_kind, filter_tau, screen,
                               shift_fractions)
-from gyronet.diagnose.effects import check_bundle
-from gyronet.features import feature_name
-from gyronet.model import RBFNet
+from gyronet.analysis.diagnose.effects import check_bundle
+from gyronet.model.features import feature_name
+from gyronet.model.rbf import RBFNet
 from gyronet.sim import first_order_lag, simulate, write_simulation
 from gyronet.sim.noise import ou_process
 
@@ -325,7 +325,7 @@ def test_the_script_reports_bad_input_in_one_line(tmp_path):
 
 def test_the_real_psim_recording_reports_what_it_can(tmp_path):
     source = SHARED / "data" / "real" / "psim-tvc" / "TVCtest3_7_20.csv"
-    importers = pytest.importorskip("gyronet.importers")
+    importers = pytest.importorskip("gyronet.recordings.importers")
     if not source.is_file():
         pytest.skip("no psim-tvc data")
     path = tmp_path / "psim.csv"
@@ -452,7 +452,7 @@ def test_a_power_of_temperature_needs_capacity_not_a_new_input(tmp_path):
     ({"candidates": {"extra": ["abc"]}}, "diagnose.candidates.extra: bad feature spec 'abc' (not a mapping)"),
 ])
 def test_bad_options_are_refused_with_the_setting_named(options, message):
-    from gyronet.diagnose.loop import DiagnoseOptions
+    from gyronet.analysis.diagnose.loop import DiagnoseOptions
     from gyronet.errors import GyronetError
 
     with pytest.raises(GyronetError) as err:
@@ -509,7 +509,7 @@ def test_the_script_reports_a_bad_configuration_in_one_line(bad_config_results, 
 
 def test_refinements_never_repeat_a_spec():
     """A fine step on a short time constant rounds back to itself (10 s * 2**0.0625 -> 10 s): no repeats."""
-    from gyronet.diagnose.candidates import refinements
+    from gyronet.analysis.diagnose.candidates import refinements
 
     for tau_s in (3.0, 10.0, 1200.0):
         trial = refinements({"kind": "lag", "source": "temp_c", "tau_s": tau_s}, (-0.0625, 0.0625))

@@ -11,11 +11,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from gyronet.diagnose import screen
-from gyronet.diagnose.advice import advice_lines, orientation_label, record_advice, runs_advice
-from gyronet.diagnose.choose import complexity, tie_groups
-from gyronet.diagnose.runlevel import RunCandidate, dealt_labels, run_candidates, screen_runs
-from gyronet.model import RBFNet
+from gyronet.analysis.diagnose import screen
+from gyronet.analysis.diagnose.advice import advice_lines, orientation_label, record_advice, runs_advice
+from gyronet.analysis.diagnose.choose import complexity, tie_groups
+from gyronet.analysis.diagnose.runlevel import RunCandidate, dealt_labels, run_candidates, screen_runs
+from gyronet.model.rbf import RBFNet
 from gyronet.sim import first_order_lag, simulate, write_simulation
 
 
@@ -156,7 +156,7 @@ def _runs(tmp_path: Path, orientations, sensor: dict, seed: int = 10) -> list[st
 
 
 def _diagnose_runs(paths, out: Path) -> dict:
-    from gyronet.diagnose import diagnose
+    from gyronet.analysis.diagnose import diagnose
 
     model = lambda n: RBFNet(n, 3, 12, rbf_inputs=[0], linear=True, temp_degree=3, clamp=True)  # noqa: E731
     # 99 shifts and deals (p down to 0.01 = alpha), as the slow tests of test_diagnose.py

@@ -7,12 +7,12 @@ diagnoses a simulated board/die gradient (``sim/effects=board``) whose board sen
 import numpy as np
 import pytest
 
-from gyronet.diagnose import screen
-from gyronet.diagnose.choose import Choice, approximations, complexity, tie_groups
-from gyronet.diagnose.report import approximation_sentence
-from gyronet.diagnose.screen import assign_folds
-from gyronet.diagnose.ties import block_contributions, paired_noise, span_labels
-from gyronet.features import feature_name
+from gyronet.analysis.diagnose import screen
+from gyronet.analysis.diagnose.choose import Choice, approximations, complexity, tie_groups
+from gyronet.analysis.diagnose.report import approximation_sentence
+from gyronet.analysis.diagnose.screen import assign_folds
+from gyronet.analysis.diagnose.ties import block_contributions, paired_noise, span_labels
+from gyronet.model.features import feature_name
 from gyronet.sim import first_order_lag, simulate, write_simulation
 
 N_BLOCKS = 560  # a 9.3 h record in 60 s blocks, 56 spans of 600 s

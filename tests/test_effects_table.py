@@ -12,9 +12,9 @@ import sys
 
 import pytest
 
-from gyronet.diagnose import diagnose
-from gyronet.diagnose.effects import found_text, to_markdown
-from gyronet.model import RBFNet
+from gyronet.analysis.diagnose import diagnose
+from gyronet.analysis.diagnose.effects import found_text, to_markdown
+from gyronet.model.rbf import RBFNet
 from gyronet.sim import simulate, write_simulation
 
 from conftest import ROOT

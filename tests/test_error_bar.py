@@ -1,4 +1,4 @@
-"""The per-sample error bar (gyronet.error_bar): columns, offline == live, wider outside the box, calibrated."""
+"""The per-sample error bar (gyronet.model.error_bar): columns, offline == live, wider outside the box, calibrated."""
 import copy
 import json
 import math
@@ -7,14 +7,14 @@ import numpy as np
 import pytest
 import torch
 
-from gyronet.compensator import Compensator
-from gyronet.data import load_recording
-from gyronet.error_bar import ErrorBar, stack_members
-from gyronet.error_bar_fit import calibrate
+from gyronet.bundle.compensator import Compensator
+from gyronet.recordings.data import load_recording
+from gyronet.model.error_bar import ErrorBar, stack_members
+from gyronet.training.error_bar_fit import calibrate
 from gyronet.errors import BundleError
-from gyronet.model import RBFNet
-from gyronet.offline import SIGMA_COLUMNS, compensate_file
-from gyronet.sigma_table import block_coverage, score_simulated
+from gyronet.model.rbf import RBFNet
+from gyronet.bundle.offline import SIGMA_COLUMNS, compensate_file
+from gyronet.training.sigma_table import block_coverage, score_simulated
 
 
 def _members(n_members: int = 3, n_inputs: int = 3) -> list:
@@ -186,8 +186,8 @@ def test_calibrated_on_a_held_out_history(bundle, cycle_csv, tmp_path):
 
 def test_a_still_run_is_scored_against_zero_with_its_noise_and_tabled(tmp_path):
     """score_still: the window dropped, the run's 60 s white noise allowed for; to_markdown and write_table."""
-    from gyronet.offline import write_compensated
-    from gyronet.sigma_table import score_still, to_markdown, write_table
+    from gyronet.bundle.offline import write_compensated
+    from gyronet.training.sigma_table import score_still, to_markdown, write_table
 
     rng = np.random.default_rng(3)
     time_s = np.arange(0.0, 7200.0, 1.0)

@@ -9,14 +9,14 @@ import numpy as np
 import pytest
 import torch
 
-from gyronet.compensator import build_meta
-from gyronet.dataset import DriftData
+from gyronet.bundle.compensator import build_meta
+from gyronet.training.dataset import DriftData
 from gyronet.deploy.params import (Cubic, ardupilot_cubic, bundle_cubic, export_params, px4_cubic, read_params,
                                    steady_features)
 from gyronet.errors import BundleError, GyronetError
-from gyronet.export import read_bundle, save_bundle
-from gyronet.pipeline import model_info, train_run
-from gyronet.px4 import Px4Cubic, Px4Onboard
+from gyronet.bundle.io import read_bundle, save_bundle
+from gyronet.training.pipeline import model_info, train_run
+from gyronet.model.px4 import Px4Cubic, Px4Onboard
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -47,7 +47,7 @@ def float32_tolerance(cubic: Cubic) -> float:
 @pytest.fixture(scope="module")
 def poly3_bundle(tmp_path_factory, paper_csv) -> Path:
     """model=poly3 as train.py trains it (10 s blocks of the training split)."""
-    from gyronet.baselines import TempPolynomial
+    from gyronet.model.baselines import TempPolynomial
 
     out = tmp_path_factory.mktemp("poly3")
     data = DriftData(str(paper_csv))
@@ -138,7 +138,7 @@ def test_bundles_a_polynomial_cannot_express_are_refused(bundle, tmp_path):
     kalman = save_bundle(read_bundle(bundle).model, meta, tmp_path / "kf", kalman={"stage": "any"})
     with pytest.raises(BundleError, match="has a Kalman stage, which a temperature polynomial cannot express"):
         bundle_cubic(kalman)
-    from gyronet.baselines import LinearFeatures
+    from gyronet.model.baselines import LinearFeatures
 
     aux = LinearFeatures(2)
     aux.fit_closed_form(torch.randn(40, 2, dtype=torch.float64), torch.randn(40, 3, dtype=torch.float64))

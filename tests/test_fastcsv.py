@@ -9,7 +9,7 @@ from hypothesis import given, strategies as st
 
 from gyronet.atomic import OutputError, atomic_output
 from gyronet.errors import GyronetError
-from gyronet.fastcsv import format_rows, write_csv
+from gyronet.recordings.fastcsv import format_rows, write_csv
 
 # any finite float64: zeros, subnormals, 1e-300 .. 1e300, negatives
 FINITE = st.floats(allow_nan=False, allow_infinity=False, allow_subnormal=True, width=64)

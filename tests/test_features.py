@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from gyronet.features import PAPER_FEATURES, FeatureExtractor, feature_name
+from gyronet.model.features import PAPER_FEATURES, FeatureExtractor, feature_name
 
 FS_HZ = 10.0
 

@@ -13,8 +13,8 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from gyronet.features import PAPER_FEATURES, FeatureExtractor
-from gyronet.guard import CONFIRM_S, CONFIRM_SAMPLES
+from gyronet.model.features import PAPER_FEATURES, FeatureExtractor
+from gyronet.recordings.guard import CONFIRM_S, CONFIRM_SAMPLES
 
 FS_HZ = 10.0
 LSB_C = 0.01
@@ -67,7 +67,7 @@ def test_the_real_psim_record_with_its_breaks_has_a_physical_dT_dt():
     path = REAL / "psim-tvc" / "TVCtest3_7_20.csv"
     if not path.exists():
         pytest.skip(f"real data not present: {path}")
-    from gyronet.importers import import_recording
+    from gyronet.recordings.importers import import_recording
 
     recording = import_recording(path)
     extractor = FeatureExtractor(PAPER_FEATURES, recording.fs_hz)

@@ -1,4 +1,4 @@
-"""Fleet calibration (gyronet.fleet, scripts/fleet.py, scripts/fleet_table.py): units from a file
+"""Fleet calibration (gyronet.training.fleet, scripts/fleet.py, scripts/fleet_table.py): units from a file
 pattern, one bundle per unit through the joblib and submitit_local launchers, one table."""
 from __future__ import annotations
 
@@ -10,9 +10,9 @@ from pathlib import Path
 
 import pytest
 
-from gyronet.data import load_recording
+from gyronet.recordings.data import load_recording
 from gyronet.errors import GyronetError
-from gyronet.fleet import (UNITS_FILE, find_units, fleet_table, sweep_overrides, to_markdown, write_units)
+from gyronet.training.fleet import (UNITS_FILE, find_units, fleet_table, sweep_overrides, to_markdown, write_units)
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "scripts"))

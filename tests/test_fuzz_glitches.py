@@ -19,15 +19,15 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from gyronet.allan import allan_report
-from gyronet.compensator import Compensator
-from gyronet.csvtable.tail import cell_shape
-from gyronet.data import GYRO_COLUMNS, Recording, load_recording, write_recording
-from gyronet.export import load_unfrozen
-from gyronet.fastcsv import write_csv
-from gyronet.guard import CONFIRM_SAMPLES
-from gyronet.kalman import KalmanStage
-from gyronet.offline import compensate_recording
-from gyronet.startup import StartupOffset
+from gyronet.bundle.compensator import Compensator
+from gyronet.recordings.csvtable.tail import cell_shape
+from gyronet.recordings.data import GYRO_COLUMNS, Recording, load_recording, write_recording
+from gyronet.bundle.io import load_unfrozen
+from gyronet.recordings.fastcsv import write_csv
+from gyronet.recordings.guard import CONFIRM_SAMPLES
+from gyronet.model.kalman import KalmanStage
+from gyronet.bundle.offline import compensate_recording
+from gyronet.bundle.startup import StartupOffset
 
 from conftest import toy_kalman_dict
 

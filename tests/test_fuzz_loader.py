@@ -25,7 +25,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from gyronet.data import REQUIRED_COLUMNS, load_recording
+from gyronet.recordings.data import REQUIRED_COLUMNS, load_recording
 from gyronet.errors import RecordingError
 
 AUX = ("vdd_v", "board_temp_c", "acc_z_g")

@@ -10,11 +10,11 @@ import pytest
 from hypothesis import event, example, given
 from hypothesis import strategies as st
 
-from gyronet.compensator import Compensator
-from gyronet.data import Recording
+from gyronet.bundle.compensator import Compensator
+from gyronet.recordings.data import Recording
 from gyronet.errors import GyronetError
-from gyronet.offline import compensate_as_deployed
-from gyronet.rate_table import residual_rms_dps
+from gyronet.bundle.offline import compensate_as_deployed
+from gyronet.analysis.rate_table import residual_rms_dps
 from gyronet.sim import simulate, timing
 
 SIM_HZ = 20.0

@@ -26,7 +26,7 @@ import numpy as np
 from hypothesis import given
 from hypothesis import strategies as st
 
-from gyronet.stream import (FAULT_REASONS, CsvLineParser, Fault, LpBusLayout, LpBusParser, Sample,
+from gyronet.deploy.stream import (FAULT_REASONS, CsvLineParser, Fault, LpBusLayout, LpBusParser, Sample,
                             encode_csv_header, encode_csv_line, encode_lpbus)
 
 NAMES = ["time_s", "temp_c", "gyro_x_dps", "gyro_y_dps", "gyro_z_dps", "acc_x_g", "acc_y_g", "acc_z_g"]

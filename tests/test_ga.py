@@ -1,4 +1,4 @@
-"""gyronet.ga: pure genetic operators, checked on known problems with a seeded rng."""
+"""gyronet.training.ga: pure genetic operators, checked on known problems with a seeded rng."""
 from __future__ import annotations
 
 import math
@@ -6,7 +6,7 @@ import math
 import numpy as np
 import pytest
 
-from gyronet.ga import (
+from gyronet.training.ga import (
     Param,
     crossover,
     elite_indices,

@@ -1,7 +1,7 @@
 """A rejected sample is rejected everywhere (issue 26): property tests on glitches of any size and length.
 
 The reference for every other row is the same recording with the glitch rows removed, where the
-glitch is a temperature the guard rejects (``gyronet.guard``): the row is a lost sample to the
+glitch is a temperature the guard rejects (``gyronet.recordings.guard``): the row is a lost sample to the
 features, the start-up window and the Kalman stage alike. A gyro value that is impossible leaves
 the row's temperature good, so the features keep it; the reference is then the stages after the
 model run without that row (the rows "marked lost" there). Row 0 is never glitched here: the
@@ -17,13 +17,13 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from gyronet.allan import allan_report
-from gyronet.compensator import Compensator
-from gyronet.data import GYRO_COLUMNS, Recording, load_recording, load_truth, write_recording
-from gyronet.dataset import DriftData, block_rmse
-from gyronet.guard import CONFIRM_SAMPLES, SENSOR_RANGE_C
-from gyronet.kalman import KalmanStage
-from gyronet.offline import compensate_recording
-from gyronet.startup import StartupOffset
+from gyronet.bundle.compensator import Compensator
+from gyronet.recordings.data import GYRO_COLUMNS, Recording, load_recording, load_truth, write_recording
+from gyronet.training.dataset import DriftData, block_rmse
+from gyronet.recordings.guard import CONFIRM_SAMPLES, SENSOR_RANGE_C
+from gyronet.model.kalman import KalmanStage
+from gyronet.bundle.offline import compensate_recording
+from gyronet.bundle.startup import StartupOffset
 
 from conftest import toy_kalman_dict
 
@@ -169,8 +169,8 @@ def test_a_temperature_glitch_changes_neither_the_trained_box_nor_the_training_b
 
 def test_the_issue_case_a_30_degc_glitch_at_the_hottest_row_leaves_the_bundle_box(small_csv, tmp_path):
     """Issue 26 row 3: one +30 degC glitch widened the trained box by 30 degC (poly3, the PX4-style model)."""
-    from gyronet.baselines import TempPolynomial
-    from gyronet.pipeline import train_run
+    from gyronet.model.baselines import TempPolynomial
+    from gyronet.training.pipeline import train_run
 
     recording = load_recording(small_csv)
     hottest = int(np.argmax(recording.temp_c))
@@ -253,8 +253,8 @@ def test_a_glitch_cannot_give_a_flat_record_the_temperature_span_training_needs(
 
 
 def test_a_glitch_in_one_run_of_a_campaign_stays_out_of_its_box_and_blocks(small_csv, tmp_path):
-    from gyronet.features import PAPER_FEATURES
-    from gyronet.runs import RunsData, load_runs
+    from gyronet.model.features import PAPER_FEATURES
+    from gyronet.training.runs import RunsData, load_runs
 
     recording = load_recording(small_csv)
     hottest = int(np.argmax(recording.temp_c))

@@ -10,9 +10,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from gyronet.data import load_recording
+from gyronet.recordings.data import load_recording
 from gyronet.errors import GyronetError, RecordingError
-from gyronet.importers import convert, detect_format, import_recording
+from gyronet.recordings.importers import convert, detect_format, import_recording
 
 ROOT = Path(__file__).resolve().parents[1]
 PSIM_DIR = Path(__file__).resolve().parents[2] / "shared" / "data" / "real" / "psim-tvc"

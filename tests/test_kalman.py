@@ -10,7 +10,7 @@ from scipy import signal
 from scipy.linalg import solve_discrete_are
 
 from gyronet.errors import GyronetError
-from gyronet.kalman import (AxisModel, KalmanInputError, KalmanModel, KalmanStage, allan_cost, identify,
+from gyronet.model.kalman import (AxisModel, KalmanInputError, KalmanModel, KalmanStage, allan_cost, identify,
                             q_rate_for_time_constant, step_response)
 
 FS_HZ = 10.0

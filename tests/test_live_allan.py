@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from gyronet.stream.live import LiveAllan
+from gyronet.deploy.stream.live import LiveAllan
 
 
 def test_a_1khz_stream_keeps_ten_values_a_second_and_reads_n():

@@ -9,11 +9,11 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from gyronet.compensator import Compensator
-from gyronet.data import GYRO_COLUMNS, Recording, load_recording
-from gyronet.offline import compensate_recording
-from gyronet.stream import FaultPlan, LpBusParser, Sample, lpbus_frame, plan_stream
-from gyronet.stream.events import as_samples
+from gyronet.bundle.compensator import Compensator
+from gyronet.recordings.data import GYRO_COLUMNS, Recording, load_recording
+from gyronet.bundle.offline import compensate_recording
+from gyronet.deploy.stream import FaultPlan, LpBusParser, Sample, lpbus_frame, plan_stream
+from gyronet.deploy.stream.events import as_samples
 
 OUT_OF_RANGE_TEMP_C = 150.0
 
@@ -50,7 +50,7 @@ def scripted_reads(reads: list[bytes], per_sample: bool):
 
 
 def run(monkeypatch, bundle, tmp_path, reads: list[bytes], per_sample: bool, name: str, **options):
-    import gyronet.stream.live as live
+    import gyronet.deploy.stream.live as live
 
     monkeypatch.setattr(live, "read_chunks", scripted_reads(reads, per_sample))
     path = tmp_path / f"{name}.csv"
@@ -133,7 +133,7 @@ def test_the_start_up_window_ends_inside_a_chunk_as_per_sample_and_offline(bundl
 
 def test_motion_in_the_start_up_window_stops_after_the_windows_rows_as_per_sample(bundle, paper_csv, tmp_path,
                                                                                    monkeypatch):
-    from gyronet.startup import StartupMotionError
+    from gyronet.bundle.startup import StartupMotionError
 
     recording = load_recording(paper_csv).slice(slice(0, 600))
     columns = {c: v.copy() for c, v in recording.columns.items()}
@@ -151,7 +151,7 @@ def test_motion_in_the_start_up_window_stops_after_the_windows_rows_as_per_sampl
 
 def test_a_lone_frame_is_written_before_the_next_read(bundle, tmp_path, monkeypatch):
     """No waiting for a chunk to fill: each read's rows are on disk when the reader is asked again."""
-    import gyronet.stream.live as live
+    import gyronet.deploy.stream.live as live
 
     path = tmp_path / "live.csv"
     seen = []
@@ -170,7 +170,7 @@ def test_a_lone_frame_is_written_before_the_next_read(bundle, tmp_path, monkeypa
 def test_read_chunks_brings_what_waits_in_one_chunk_and_a_lone_frame_at_once():
     import serial
 
-    from gyronet.stream.reader import read_chunks
+    from gyronet.deploy.stream.reader import read_chunks
 
     frame = [lpbus_frame(1, 9, bytes(40 - i) + bytes([i])) for i in range(8)]
     port = serial.serial_for_url("loop://", timeout=0.05)
@@ -188,9 +188,9 @@ def test_a_chunk_cut_by_a_full_disk_keeps_its_complete_lines(bundle, tmp_path, m
     import errno
     import os
 
-    import gyronet.stream.output as output_module
-    from gyronet.compensator import Compensated
-    from gyronet.stream.output import LiveWriter, OutputError
+    import gyronet.deploy.stream.output as output_module
+    from gyronet.bundle.compensator import Compensated
+    from gyronet.deploy.stream.output import LiveWriter, OutputError
 
     writer = LiveWriter(tmp_path / "live.csv", bundle)
     n = 10
@@ -216,8 +216,8 @@ def test_a_chunk_cut_by_a_full_disk_keeps_its_complete_lines(bundle, tmp_path, m
 
 def test_rows_in_floats_are_the_lines_write_makes_for_them(tmp_path):
     """``LiveWriter.write_rows`` (the few-frames path) and ``write`` give the same bytes."""
-    from gyronet.compensator import Compensated
-    from gyronet.stream.output import LiveWriter
+    from gyronet.bundle.compensator import Compensated
+    from gyronet.deploy.stream.output import LiveWriter
 
     time_s, temp_c = [12.345678901234, 12.5, 1e16], [25.0625, -3.0, 1e-5]
     rate = [[0.1 + 1e-17, -2.5e-7, 1234.000000001], [float("nan"), 0.0, -0.0], [float("inf"), -float("inf"), 5e-324]]

@@ -10,10 +10,10 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from gyronet.data import GYRO_COLUMNS, load_recording
-from gyronet.stream import CsvLineParser, FaultPlan, plan_stream
-from gyronet.stream.csv_run import LineRun
-from gyronet.stream.lpbus_run import FrameRun
+from gyronet.recordings.data import GYRO_COLUMNS, load_recording
+from gyronet.deploy.stream import CsvLineParser, FaultPlan, plan_stream
+from gyronet.deploy.stream.csv_run import LineRun
+from gyronet.deploy.stream.lpbus_run import FrameRun
 from test_live_chunks import (OUT_OF_RANGE_TEMP_C, assert_same_rows, flood, offline_by_segment,  # noqa: F401
                               reads_of, run)
 
@@ -88,9 +88,9 @@ def test_flood_path_writes_the_same_file_and_summary_as_frame_by_frame(bundle, f
 
 
 def test_flood_through_a_pty_equals_frame_by_frame(bundle, paper_csv, tmp_path, monkeypatch, flood_path):
-    from gyronet.data import load_recording
-    from gyronet.stream.live import run_stream
-    from gyronet.stream.pty_sensor import play_in_thread
+    from gyronet.recordings.data import load_recording
+    from gyronet.deploy.stream.live import run_stream
+    from gyronet.deploy.stream.pty_sensor import play_in_thread
 
     columns = load_recording(paper_csv).slice(slice(0, 3000)).columns
     faults = FaultPlan(garbage_rate=0.01, corrupt_rate=0.01, truncate_rate=0.01, nan_rate=0.005, seed=7)
@@ -116,9 +116,9 @@ def test_flood_through_a_pty_equals_frame_by_frame(bundle, paper_csv, tmp_path, 
 
 
 def test_first_rows_cuts_a_block_where_the_rows_end():
-    from gyronet.stream import Sample
-    from gyronet.stream.chunk import first_rows, n_rows
-    from gyronet.stream.events import SampleBlock
+    from gyronet.deploy.stream import Sample
+    from gyronet.deploy.stream.chunk import first_rows, n_rows
+    from gyronet.deploy.stream.events import SampleBlock
 
     one = Sample(0.5, {"temp_c": 25.0})
     block = SampleBlock({"time_s": np.arange(1.0, 11.0), "temp_c": np.full(10, 25.0)})

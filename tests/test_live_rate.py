@@ -3,10 +3,10 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from gyronet.compensator import Compensator
-from gyronet.data import GYRO_COLUMNS, load_recording
+from gyronet.bundle.compensator import Compensator
+from gyronet.recordings.data import GYRO_COLUMNS, load_recording
 from gyronet.errors import BundleError
-from gyronet.offline import compensate_recording
+from gyronet.bundle.offline import compensate_recording
 from gyronet.sim import simulate, write_simulation
 
 
@@ -19,8 +19,8 @@ def ten_hz(tmp_path_factory):
 
 
 def _stream(monkeypatch, recording):
-    import gyronet.stream.live as live
-    from gyronet.stream import Sample
+    import gyronet.deploy.stream.live as live
+    from gyronet.deploy.stream import Sample
 
     def scripted(*args, **kwargs):
         samples = [Sample(float(recording.time_s[row]), {c: float(recording.columns[c][row])

@@ -1,6 +1,6 @@
 """Issue 13: talking to LP-BUS sensors of both generations, and refusing what cannot be decoded.
 
-The emulated sensor (gyronet.stream.lpbus_device) sits behind an in-memory port here; the pty
+The emulated sensor (gyronet.deploy.stream.lpbus_device) sits behind an in-memory port here; the pty
 tests are in test_lpbus_live.py. Frames "as the reference parser expects" are built with
 ``struct`` from the reference's own description (OpenZen ImuComponent.cpp / ImuIg1Component.cpp),
 not with gyronet's encoder.
@@ -12,13 +12,13 @@ from dataclasses import replace
 
 import pytest
 
-from gyronet.stream import LpBusLayout, LpBusParser, Sample, encode_lpbus
-from gyronet.stream.lpbus_config import Wanted, configure_sensor
-from gyronet.stream.lpbus_device import EmulatedLpms
-from gyronet.stream import lpbus_legacy as legacy
-from gyronet.stream.lpbus_link import LpBusLink, SensorError
-from gyronet.stream.lpbus_probe import FirstFrames, LayoutError
-from gyronet.stream.lpbus_setup import LpBusSetup, is_serial_device
+from gyronet.deploy.stream import LpBusLayout, LpBusParser, Sample, encode_lpbus
+from gyronet.deploy.stream.lpbus_config import Wanted, configure_sensor
+from gyronet.deploy.stream.lpbus_device import EmulatedLpms
+from gyronet.deploy.stream import lpbus_legacy as legacy
+from gyronet.deploy.stream.lpbus_link import LpBusLink, SensorError
+from gyronet.deploy.stream.lpbus_probe import FirstFrames, LayoutError
+from gyronet.deploy.stream.lpbus_setup import LpBusSetup, is_serial_device
 
 WANTED = Wanted(fields=("gyro", "acc", "temperature"), rate_hz=100)
 ROW = {"time_s": 1.5, "gyro_x_dps": 0.25, "gyro_y_dps": -1.0, "gyro_z_dps": 2.0, "acc_x_g": 0.01,
@@ -305,7 +305,7 @@ def test_without_acceleration_the_quaternion_and_the_clock_are_checked_else_the_
     with pytest.raises(LayoutError, match=r"at 80 Hz by its times, no rate a legacy sensor streams at, but 100 Hz "
                                           r"times 400/500: the timestamp counts at 500 Hz"):
         probed(LpBusLayout(("gyro", "temperature"))).feed(ig1)
-    with caplog.at_level(logging.WARNING, logger="gyronet.stream.lpbus_probe"):
+    with caplog.at_level(logging.WARNING, logger="gyronet.deploy.stream.lpbus_probe"):
         assert len(probed(LpBusLayout(("gyro", "temperature"), generation="ig1")).feed(ig1)) == 20
     assert "fit ig1 LP-BUS" in caplog.text and "in their times and temperature, but which output sits where could " \
         "not be checked" in caplog.text
@@ -313,7 +313,7 @@ def test_without_acceleration_the_quaternion_and_the_clock_are_checked_else_the_
 
 def test_setup_refuses_a_bundle_trained_on_the_host_corrected_gyro():
     from gyronet.errors import BundleError
-    from gyronet.stream.lpbus_setup import start_lpbus
+    from gyronet.deploy.stream.lpbus_setup import start_lpbus
 
     with pytest.raises(BundleError, match="host_corrected gyro.*LP-BUS carries the raw gyro"):
         start_lpbus(None, "loop://", LpBusSetup(configure=False), {"fs_hz": 10.0, "gyro_source": "host_corrected"})
@@ -324,12 +324,12 @@ def test_setup_refuses_a_bundle_trained_on_the_host_corrected_gyro():
 def test_bundles_record_which_gyro_they_were_trained_on(paper_csv, bundle, tmp_path):
     import torch
 
-    from gyronet.bundle_schema import gyro_source_of, validate_meta
-    from gyronet.compensator import Compensator
-    from gyronet.data import load_recording, write_recording
-    from gyronet.dataset import DriftData
+    from gyronet.bundle.schema import gyro_source_of, validate_meta
+    from gyronet.bundle.compensator import Compensator
+    from gyronet.recordings.data import load_recording, write_recording
+    from gyronet.training.dataset import DriftData
     from gyronet.errors import BundleError
-    from gyronet.pipeline import _meta
+    from gyronet.training.pipeline import _meta
 
     assert gyro_source_of([{}, {}]) is None
     assert gyro_source_of([{"gyro_source": "raw"}, {"gyro_source": "host_corrected"}]) == "host_corrected"
@@ -342,7 +342,7 @@ def test_bundles_record_which_gyro_they_were_trained_on(paper_csv, bundle, tmp_p
     with pytest.raises(BundleError, match="'gyro_source' must be one of"):
         validate_meta({**meta, "format": 1, "gyro_source": "filtered"})
     older = Compensator.load(bundle).meta  # a bundle without the field (trained on the simulator) still streams
-    from gyronet.stream.lpbus_setup import start_lpbus
+    from gyronet.deploy.stream.lpbus_setup import start_lpbus
 
     assert "gyro_source" not in older and start_lpbus(None, "loop://", LpBusSetup(configure=False), older).layout
 
@@ -351,7 +351,7 @@ def test_bundles_record_which_gyro_they_were_trained_on(paper_csv, bundle, tmp_p
 
 from hypothesis import given, strategies as st  # noqa: E402
 
-from gyronet.stream.lpbus_layout import generation_fields  # noqa: E402
+from gyronet.deploy.stream.lpbus_layout import generation_fields  # noqa: E402
 
 
 @given(generation=st.sampled_from(["legacy", "ig1"]), bits=st.integers(0, 2 ** 17 - 1),
@@ -380,8 +380,8 @@ def test_any_register_of_either_generation_decodes_what_was_sent(generation, bit
        garbage=st.lists(st.binary(max_size=12).filter(lambda b: 0x3A not in b), min_size=9, max_size=9),
        cut=st.integers(0, 400))
 def test_replies_are_found_among_garbage_at_any_split(commands, garbage, cut):
-    from gyronet.stream.lpbus import lpbus_frame
-    from gyronet.stream.lpbus_link import FrameReader
+    from gyronet.deploy.stream.lpbus import lpbus_frame
+    from gyronet.deploy.stream.lpbus_link import FrameReader
 
     stream = b"".join(g + lpbus_frame(1, c, d) for g, (c, d) in zip(garbage, commands)) + garbage[-1]
     reader = FrameReader()

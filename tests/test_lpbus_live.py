@@ -7,14 +7,14 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from gyronet.compensator import Compensator
-from gyronet.data import GYRO_COLUMNS, load_recording, write_recording
-from gyronet.stream import FaultPlan
-from gyronet.stream.lpbus_device import EmulatedLpms
-from gyronet.stream.lpbus_probe import LayoutError
-from gyronet.stream.lpbus_setup import LpBusSetup
-from gyronet.stream.pty_device import fill_columns
-from gyronet.stream.pty_sensor import play_in_thread
+from gyronet.bundle.compensator import Compensator
+from gyronet.recordings.data import GYRO_COLUMNS, load_recording, write_recording
+from gyronet.deploy.stream import FaultPlan
+from gyronet.deploy.stream.lpbus_device import EmulatedLpms
+from gyronet.deploy.stream.lpbus_probe import LayoutError
+from gyronet.deploy.stream.lpbus_setup import LpBusSetup
+from gyronet.deploy.stream.pty_device import fill_columns
+from gyronet.deploy.stream.pty_sensor import play_in_thread
 
 N_SAMPLES = 300
 FAST = {"backoff_s": 0.05, "max_backoff_s": 0.2, "give_up_s": 0.5}
@@ -51,7 +51,7 @@ def offline(bundle, columns, plan, layout):
 
 @pytest.mark.parametrize("model", ["LPMS-CU2", "LPMS-IG1-RS232"])
 def test_configured_sensor_streams_and_live_equals_offline(bundle, short_recording, tmp_path, model):
-    from gyronet.stream.live import run_stream
+    from gyronet.deploy.stream.live import run_stream
 
     recording = load_recording(short_recording)
     device = power_on(model)
@@ -85,8 +85,8 @@ def test_configured_sensor_streams_and_live_equals_offline(bundle, short_recordi
 
 
 def test_rate_the_bundle_needs_is_refused_without_resample(bundle, short_recording, tmp_path):
-    from gyronet.stream.live import run_stream
-    from gyronet.stream.lpbus_link import SensorError
+    from gyronet.deploy.stream.live import run_stream
+    from gyronet.deploy.stream.lpbus_link import SensorError
 
     recording = load_recording(short_recording)
     link = tmp_path / "sensor"
@@ -99,7 +99,7 @@ def test_rate_the_bundle_needs_is_refused_without_resample(bundle, short_recordi
 
 
 def test_passive_reader_of_an_ig1_with_the_legacy_layout_is_refused(bundle, short_recording, tmp_path):
-    from gyronet.stream.live import run_stream
+    from gyronet.deploy.stream.live import run_stream
 
     recording = load_recording(short_recording)
     device = EmulatedLpms(model="LPMS-IG1-RS232", fields=("acc", "gyro", "temperature"), rate_hz=10, precision=32)
@@ -113,7 +113,7 @@ def test_passive_reader_of_an_ig1_with_the_legacy_layout_is_refused(bundle, shor
 
 
 def test_record_sets_the_sensor_up_and_writes_a_recording(short_recording, tmp_path):
-    from gyronet.stream.record import record_stream
+    from gyronet.deploy.stream.record import record_stream
 
     recording = load_recording(short_recording)
     recording.columns["time_s"] = np.arange(N_SAMPLES) / 100.0  # played at the rate the sensor is set to
@@ -175,9 +175,9 @@ def test_reference_built_frames_replayed_through_a_pty_decode_exactly(tmp_path):
     import math
     import struct
 
-    from gyronet.stream import LpBusLayout, LpBusParser, Sample, read_samples
-    from gyronet.stream.emulator import Event, StreamPlan
-    from gyronet.stream.reader import open_port
+    from gyronet.deploy.stream import LpBusLayout, LpBusParser, Sample, read_samples
+    from gyronet.deploy.stream.emulator import Event, StreamPlan
+    from gyronet.deploy.stream.reader import open_port
     from test_lpbus_config import ig1_frame, legacy_frame
 
     def f32(value):

@@ -6,12 +6,12 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from gyronet.data import GYRO_COLUMNS, load_recording
-from gyronet.stream.lpbus_device import EmulatedLpms
-from gyronet.stream.lpbus_link import SensorError
-from gyronet.stream.lpbus_probe import LayoutError
-from gyronet.stream.lpbus_setup import LpBusSetup
-from gyronet.stream.pty_sensor import play_in_thread
+from gyronet.recordings.data import GYRO_COLUMNS, load_recording
+from gyronet.deploy.stream.lpbus_device import EmulatedLpms
+from gyronet.deploy.stream.lpbus_link import SensorError
+from gyronet.deploy.stream.lpbus_probe import LayoutError
+from gyronet.deploy.stream.lpbus_setup import LpBusSetup
+from gyronet.deploy.stream.pty_sensor import play_in_thread
 from test_lpbus_live import FAST, N_SAMPLES, offline, power_on, short_recording, started  # noqa: F401 (fixture)
 
 SPLIT = N_SAMPLES // 2
@@ -27,7 +27,7 @@ def halves(path):
 
 
 def run_live(bundle, link, tmp_path, lpbus, **options):
-    from gyronet.stream.live import run_stream
+    from gyronet.deploy.stream.live import run_stream
 
     return run_stream(bundle, str(link), tmp_path / "live.csv", allan_every_s=0, reconnect=FAST, resample=True,
                       lpbus=lpbus, **options)
@@ -40,7 +40,7 @@ def test_a_power_cycled_sensor_is_set_up_again_and_live_equals_offline_per_segme
     link = tmp_path / "sensor"
     thread = started(play_in_thread(None, link, device=power_on("LPMS-CU2"), columns=first,
                                     replugs=[(again, second)], preroll_frames=3), link)
-    with caplog.at_level(logging.INFO, logger="gyronet.stream.lpbus_setup"):
+    with caplog.at_level(logging.INFO, logger="gyronet.deploy.stream.lpbus_setup"):
         summary = run_live(bundle, link, tmp_path, LpBusSetup(configure=True, timeout_s=2.0))
     thread.join(10)
     assert again.commands[0] == 6 and again.commands[-1] == 7  # the host talked to the sensor that came back
@@ -83,7 +83,7 @@ def test_a_listening_run_checks_the_first_frames_again_after_a_reopen(bundle, sh
 
 
 def test_record_sets_a_power_cycled_sensor_up_again(short_recording, tmp_path):
-    from gyronet.stream.record import record_stream
+    from gyronet.deploy.stream.record import record_stream
 
     first, second = halves(short_recording)
     for columns in (first, second):
@@ -107,14 +107,14 @@ def test_record_sets_a_power_cycled_sensor_up_again(short_recording, tmp_path):
 
 def test_a_link_drop_without_a_power_cycle_is_set_up_again_with_nothing_to_change(bundle, short_recording, tmp_path,
                                                                                     caplog):
-    from gyronet.stream import FaultPlan
+    from gyronet.deploy.stream import FaultPlan
 
     recording = load_recording(short_recording)
     device = power_on("LPMS-CU2")
     link = tmp_path / "sensor"
     thread = started(play_in_thread(None, link, device=device, columns=recording.columns,
                                     faults=FaultPlan(drop_port_at_s=(50.0,))), link)
-    with caplog.at_level(logging.INFO, logger="gyronet.stream.lpbus_setup"):
+    with caplog.at_level(logging.INFO, logger="gyronet.deploy.stream.lpbus_setup"):
         summary = run_live(bundle, link, tmp_path, LpBusSetup(configure=True, timeout_s=2.0))
     thread.join(10)
     assert "LPMS-CU2 set up again: it had kept its settings" in caplog.text
@@ -125,7 +125,7 @@ def test_a_link_drop_without_a_power_cycle_is_set_up_again_with_nothing_to_chang
 def test_record_refuses_another_sensor_after_a_replug_and_still_writes_its_summary(short_recording, tmp_path):
     import json
 
-    from gyronet.stream.record import record_stream
+    from gyronet.deploy.stream.record import record_stream
 
     first, second = halves(short_recording)
     for columns in (first, second):
@@ -146,8 +146,8 @@ def test_ctrl_c_without_a_stop_poll_still_writes_the_chunk_in_flight(tmp_path, m
     import os
     import signal
 
-    from gyronet.stream import Sample
-    from gyronet.stream import record
+    from gyronet.deploy.stream import Sample
+    from gyronet.deploy.stream import record
 
     values = {"gyro_x_dps": 0.1, "gyro_y_dps": 0.2, "gyro_z_dps": 0.3, "acc_x_g": 0.0, "acc_y_g": 0.0,
               "acc_z_g": 1.0, "temp_c": 30.0}

@@ -1,4 +1,4 @@
-"""The LP-BUS flood path (``LpBusParser(blocks=True)``, :mod:`gyronet.stream.lpbus_run`) against the per-frame path.
+"""The LP-BUS flood path (``LpBusParser(blocks=True)``, :mod:`gyronet.deploy.stream.lpbus_run`) against the per-frame path.
 
 A stream of good frames with damage of every kind (cut frames, flipped bytes, garbage, frames of
 another length or sensor id with a good LRC, time going back a little and a lot, jumping ahead,
@@ -13,9 +13,9 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from gyronet.stream import Fault, LpBusLayout, LpBusParser, Sample, SampleCheck, encode_lpbus, lpbus_frame
-from gyronet.stream.events import SampleBlock, as_samples
-from gyronet.stream.lpbus_run import MIN_RUN_FRAMES
+from gyronet.deploy.stream import Fault, LpBusLayout, LpBusParser, Sample, SampleCheck, encode_lpbus, lpbus_frame
+from gyronet.deploy.stream.events import SampleBlock, as_samples
+from gyronet.deploy.stream.lpbus_run import MIN_RUN_FRAMES
 
 LAYOUTS = {
     "legacy32": LpBusLayout(),

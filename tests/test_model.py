@@ -6,12 +6,12 @@ import pytest
 import torch
 from torch.testing import assert_close
 
-from gyronet.baselines import LinearFeatures, TempPolynomial
-from gyronet.dataset import Blocks
-from gyronet.export import load_bundle, save_bundle
-from gyronet.model import CENTER_INITS, OLS_NARROW_WIDTHS_C, OLS_WIDTHS_C, RBFNet, forward_select
-from gyronet.starts import held_out_residuals, member_seeds, mix_into, stack_weights
-from gyronet.train import fit, validation_metrics
+from gyronet.model.baselines import LinearFeatures, TempPolynomial
+from gyronet.training.dataset import Blocks
+from gyronet.bundle.io import load_bundle, save_bundle
+from gyronet.model.rbf import CENTER_INITS, OLS_NARROW_WIDTHS_C, OLS_WIDTHS_C, RBFNet, forward_select
+from gyronet.training.starts import held_out_residuals, member_seeds, mix_into, stack_weights
+from gyronet.training.train import fit, validation_metrics
 
 
 def _data(n=400, seed=0):

@@ -10,12 +10,12 @@ import pandas as pd
 import pytest
 
 from gyronet.atomic import OutputError
-from gyronet.compensator import Compensator, RateChangeError
-from gyronet.data import AXES, load_recording
+from gyronet.bundle.compensator import Compensator, RateChangeError
+from gyronet.recordings.data import AXES, load_recording
 from gyronet.errors import BundleError, exit_on_error
-from gyronet.offline import compensate_file, write_compensated
+from gyronet.bundle.offline import compensate_file, write_compensated
 from gyronet.sim import simulate, write_simulation
-from gyronet.train import block_rmse
+from gyronet.training.train import block_rmse
 
 ROOT = Path(__file__).resolve().parents[1]
 DURATION_S = 4 * 3600.0
@@ -64,8 +64,8 @@ def test_resample_gives_what_the_bundle_gives_at_its_own_rate(bundle, cycles):
 
 
 def test_resample_is_refused_for_a_kalman_stage(bundle, cycles):
-    from gyronet.export import load_bundle
-    from gyronet.kalman import KalmanStage, identify
+    from gyronet.bundle.io import load_bundle
+    from gyronet.model.kalman import KalmanStage, identify
 
     model, meta, _ = load_bundle(bundle)
     residual = np.random.default_rng(0).normal(0, 0.05, (4000, 3))

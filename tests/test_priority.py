@@ -1,12 +1,12 @@
-"""The real-time priority of the sample loop (gyronet.stream.priority): taken, given back, refused in one line."""
+"""The real-time priority of the sample loop (gyronet.deploy.stream.priority): taken, given back, refused in one line."""
 import os
 import threading
 
 import pytest
 
 from gyronet.errors import ConfigError
-from gyronet.stream import priority
-from gyronet.stream.priority import normal_thread, use_realtime
+from gyronet.deploy.stream import priority
+from gyronet.deploy.stream.priority import normal_thread, use_realtime
 
 linux_only = pytest.mark.skipif(not hasattr(os, "sched_setscheduler"), reason="SCHED_FIFO is Linux's")
 

@@ -1,4 +1,4 @@
-"""PX4's thermal calibrations (gyronet/px4.py): each rule on data whose answer is worked out here,
+"""PX4's thermal calibrations (gyronet/model/px4.py): each rule on data whose answer is worked out here,
 and the offline fit against PX4's own script's output on the same ULog (tests/data/px4_reference.json)."""
 import importlib.util
 import json
@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 import torch
 
-from gyronet.baselines import TempPolynomial
+from gyronet.model.baselines import TempPolynomial
 from gyronet.errors import GyronetError
-from gyronet.px4 import Px4Cubic, Px4Onboard, median_filter, temperature_bins
+from gyronet.model.px4 import Px4Cubic, Px4Onboard, median_filter, temperature_bins
 
 DATA = Path(__file__).resolve().parent / "data"
 REFERENCE = json.loads((DATA / "px4_reference.json").read_text())
@@ -155,7 +155,7 @@ def _reference_module():
 def test_px4_fit_equals_px4s_own_script_on_the_same_ulog(tmp_path, case):
     """PX4's process_sensor_caldata.py, run unmodified (px4_reference.json says how), against model=px4."""
     pytest.importorskip("pyulog")
-    from gyronet.importers.ulog import import_ulog
+    from gyronet.recordings.importers.ulog import import_ulog
 
     reference, fixture = _reference_module(), REFERENCE["cases"][case]
     path = reference.write_caldata_ulog(tmp_path / "caldata.ulg", fixture["generator"])
@@ -181,7 +181,7 @@ def test_px4_fit_equals_px4s_own_script_on_the_same_ulog(tmp_path, case):
 
 
 def test_px4_models_refuse_run_offsets_in_one_line():
-    from gyronet.run_offsets import RunOffsets
+    from gyronet.training.run_offsets import RunOffsets
 
     x = torch.linspace(0.0, 30.0, 200, dtype=torch.float64)[:, None]
     offsets = RunOffsets(np.repeat([0, 1], 100), 2)

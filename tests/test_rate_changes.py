@@ -9,12 +9,12 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from gyronet.compensator import Compensator, RateChangeError
-from gyronet.data import GYRO_COLUMNS, Recording, load_recording, write_recording
-from gyronet.features import PAPER_FEATURES, FeatureExtractor
-from gyronet.offline import compensate_as_deployed
-from gyronet.rate_table import residual_rms_dps
-from gyronet.rate_watch import FAST, FAST_FACTOR, SPAN, VOTES, RateWatch
+from gyronet.bundle.compensator import Compensator, RateChangeError
+from gyronet.recordings.data import GYRO_COLUMNS, Recording, load_recording, write_recording
+from gyronet.model.features import PAPER_FEATURES, FeatureExtractor
+from gyronet.bundle.offline import compensate_as_deployed
+from gyronet.analysis.rate_table import residual_rms_dps
+from gyronet.recordings.rate_watch import FAST, FAST_FACTOR, SPAN, VOTES, RateWatch
 from gyronet.sim import simulate, timing
 
 ROOT = __import__("pathlib").Path(__file__).resolve().parents[1]
@@ -141,8 +141,8 @@ def test_compensate_py_refuses_a_rate_change_in_one_line_with_the_file_line(bund
 
 
 def test_live_chunked_equals_offline_through_a_rate_change(bundle, fast_sim, tmp_path, monkeypatch):
-    import gyronet.stream.live as live
-    from gyronet.stream import Sample
+    import gyronet.deploy.stream.live as live
+    from gyronet.deploy.stream import Sample
 
     n = len(fast_sim.recording["time_s"])
     rows = timing.rate_change_rows(n, STEP, 2, 0.97)
@@ -197,10 +197,10 @@ def test_the_c_compensator_flags_the_rate_change_where_compensate_py_refuses_it(
 
 
 def test_training_with_a_kalman_stage_refuses_a_rate_change_in_one_line(fast_sim, tmp_path):
-    from gyronet.dataset import DriftData
+    from gyronet.training.dataset import DriftData
     from gyronet.errors import GyronetError
-    from gyronet.model import RBFNet
-    from gyronet.pipeline import kalman_stage
+    from gyronet.model.rbf import RBFNet
+    from gyronet.training.pipeline import kalman_stage
 
     n = len(fast_sim.recording["time_s"])
     rows = timing.rate_change_rows(n, STEP, 2, 0.8)

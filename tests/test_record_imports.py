@@ -15,7 +15,7 @@ def imports_torch(code: str) -> bool:
 
 
 def test_the_recorder_and_its_script_import_no_torch():
-    assert not imports_torch("import gyronet.stream.record, gyronet.stream.signals")
+    assert not imports_torch("import gyronet.deploy.stream.record, gyronet.deploy.stream.signals")
     assert not imports_torch("import runpy, sys\nsys.argv = ['scripts/record.py', '--help']\ntry:\n"
                              "    runpy.run_path('scripts/record.py', run_name='__main__')\nexcept SystemExit:\n"
                              "    pass")

@@ -1,4 +1,4 @@
-"""ROS bag import (gyronet.importers.rosbag): bags written with rosbags' own Writers, in all three
+"""ROS bag import (gyronet.recordings.importers.rosbag): bags written with rosbags' own Writers, in all three
 storage formats, read back; topic choice, the causal temperature join, lost samples, one-line errors;
 convert.py and allan.py on a bag."""
 from __future__ import annotations
@@ -17,10 +17,10 @@ from rosbags.rosbag1 import Writer as Writer1  # noqa: E402
 from rosbags.rosbag2 import StoragePlugin, Writer as Writer2  # noqa: E402
 from rosbags.typesys import Stores, get_typestore  # noqa: E402
 
-from gyronet.data import load_recording  # noqa: E402
+from gyronet.recordings.data import load_recording  # noqa: E402
 from gyronet.errors import RecordingError  # noqa: E402
-from gyronet.importers import detect_format, import_recording  # noqa: E402
-from gyronet.importers.rosbag import import_rosbag, read_rates  # noqa: E402
+from gyronet.recordings.importers import detect_format, import_recording  # noqa: E402
+from gyronet.recordings.importers.rosbag import import_rosbag, read_rates  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 G0 = 9.80665
@@ -216,7 +216,7 @@ def _run(script: str, *overrides: str, cwd: Path) -> subprocess.CompletedProcess
 
 def test_allan_from_a_bag_equals_allan_from_its_csv(tmp_path):
     from gyronet.allan import allan_report
-    from gyronet.importers import convert
+    from gyronet.recordings.importers import convert
 
     imu = imu_stream(n=3000, fs_hz=50.0)
     bag = write_bag(tmp_path / "rec", "mcap", {"/imu": imu}, {"/t": temp_stream(T0_NS - 10**9, n=70)})

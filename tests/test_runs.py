@@ -7,15 +7,15 @@ import numpy as np
 import pytest
 import torch
 
-from gyronet.baselines import LinearFeatures, TempPolynomial
-from gyronet.data import load_recording
-from gyronet.dataset import featurize
+from gyronet.model.baselines import LinearFeatures, TempPolynomial
+from gyronet.recordings.data import load_recording
+from gyronet.training.dataset import featurize
 from gyronet.errors import GyronetError
-from gyronet.features import PAPER_FEATURES
-from gyronet.model import RBFNet
-from gyronet.run_offsets import RunOffsets
-from gyronet.runs import RunsData, fit_by_run, load_runs, training_data
-from gyronet.train import fit
+from gyronet.model.features import PAPER_FEATURES
+from gyronet.model.rbf import RBFNet
+from gyronet.training.run_offsets import RunOffsets
+from gyronet.training.runs import RunsData, fit_by_run, load_runs, training_data
+from gyronet.training.train import fit
 
 from conftest import ROOT
 
@@ -61,7 +61,7 @@ def test_rbf_offsets_are_learnt_by_adam_with_the_model():
         pass
 
     data = Data()
-    from gyronet.dataset import Blocks
+    from gyronet.training.dataset import Blocks
 
     data.train = Blocks(x, y, np.arange(len(x)) * 10.0)
     data.val = data.train
@@ -163,7 +163,7 @@ def test_ga_sweep_takes_several_runs(tmp_path, paper_csv, cycle_csv):
 
 
 def test_run_offsets_recover_simulated_turn_on_biases(tmp_path):
-    from gyronet.data import load_truth
+    from gyronet.recordings.data import load_truth
     from gyronet.sim import simulate, write_simulation
 
     paths, biases = [], []
@@ -200,7 +200,7 @@ def test_real_runs_choose_less_than_full_capacity_and_beat_the_cubic_inside_the_
     The figures are the folds' own (each run held out, trained on the other, inside its box,
     its constant removed): the evidence the selection acts on, against the PX4 cubic's.
     """
-    from gyronet import capacity
+    from gyronet.training import capacity
 
     data = training_data(paths=[str(p) for p in CATS_RUNS], run_offsets=True)
     model = RBFNet(3, 3, 12, rbf_inputs=[0], linear=True, temp_degree=3, clamp=True, select_capacity=True)

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from hydra import compose, initialize_config_dir
 
-from gyronet.data import load_recording, load_truth, truth_path
+from gyronet.recordings.data import load_recording, load_truth, truth_path
 from gyronet.errors import GyronetError
 from gyronet.sim import (EFFECTS, chamber_profile, draw_sensor, earth_rate_dps, first_order_lag, play_operator,
                          simulate, write_simulation)
@@ -379,7 +379,7 @@ def test_write_simulation_round_trip(tmp_path):
     total = sum(np.column_stack([truth.columns[f"{p}_{a}_dps"] for a in AXES])
                 for p in ("true_rate", "drift", "noise"))
     assert np.abs(recording.gyro_dps - total).max() < 1e-8
-    # the fast writer and gyronet.data.write_recording give the same numbers
+    # the fast writer and gyronet.recordings.data.write_recording give the same numbers
     write_simulation(sim, tmp_path / "slow.csv", fast=False)
     slow = load_recording(tmp_path / "slow.csv")
     for name, values in recording.columns.items():

@@ -1,13 +1,13 @@
-"""The model on one row of floats (gyronet.small_model) equals the frozen TorchScript model, for every model kind."""
+"""The model on one row of floats (gyronet.model.small_model) equals the frozen TorchScript model, for every model kind."""
 import numpy as np
 import pytest
 import torch
 
-from gyronet.baselines import LinearFeatures, TempPolynomial
-from gyronet.compensator import Compensator
-from gyronet.model import RBFNet
-from gyronet.px4 import Px4Cubic, Px4Onboard
-from gyronet.small_model import row_model
+from gyronet.model.baselines import LinearFeatures, TempPolynomial
+from gyronet.bundle.compensator import Compensator
+from gyronet.model.rbf import RBFNet
+from gyronet.model.px4 import Px4Cubic, Px4Onboard
+from gyronet.model.small_model import row_model
 
 
 def _features(n=400, seed=0):
@@ -85,7 +85,7 @@ def test_an_unknown_model_class_keeps_torchscript():
 
 def test_compensate_keeps_torchscript_and_the_live_path_matches_it(bundle, cycle_csv):
     """Offline (no ``use_small_chunks``) is TorchScript's to the bit; live one-row calls agree to 1e-12."""
-    from gyronet.data import load_recording
+    from gyronet.recordings.data import load_recording
 
     recording = load_recording(cycle_csv).slice(slice(0, 300))
     offline, live, rows = Compensator.load(bundle), Compensator.load(bundle), Compensator.load(bundle)

@@ -6,11 +6,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from gyronet.compensator import Compensator
-from gyronet.data import load_recording, load_truth
+from gyronet.bundle.compensator import Compensator
+from gyronet.recordings.data import load_recording, load_truth
 from gyronet.errors import GyronetError
 from gyronet.sim import simulate, write_simulation
-from gyronet.startup import StartupMotionError, StartupOffset
+from gyronet.bundle.startup import StartupMotionError, StartupOffset
 
 from conftest import FAST_FS_HZ, ROOT
 
@@ -109,7 +109,7 @@ def test_compensate_script_takes_startup_and_refuses_motion_in_one_line(bundle, 
     moved = dict(recording.columns)
     moved["gyro_y_dps"] = moved["gyro_y_dps"].copy()
     moved["gyro_y_dps"][20:30] += 20.0
-    from gyronet.data import write_recording
+    from gyronet.recordings.data import write_recording
 
     moved_csv = tmp_path / "moved.csv"
     write_recording(moved_csv, moved, recording.meta)
@@ -123,10 +123,10 @@ def test_live_stream_with_startup_equals_offline(bundle, biased_csv, tmp_path):
     """stream.py's loop (in-process, over a pty) with startup.still_s gives the offline numbers."""
     import pandas as pd
 
-    from gyronet.data import GYRO_COLUMNS, write_recording
-    from gyronet.stream import FaultPlan, plan_stream
-    from gyronet.stream.live import run_stream
-    from gyronet.stream.pty_sensor import play_in_thread
+    from gyronet.recordings.data import GYRO_COLUMNS, write_recording
+    from gyronet.deploy.stream import FaultPlan, plan_stream
+    from gyronet.deploy.stream.live import run_stream
+    from gyronet.deploy.stream.pty_sensor import play_in_thread
 
     recording = load_recording(biased_csv).slice(slice(0, 300))
     short = write_recording(tmp_path / "short.csv", recording.columns, recording.meta)

@@ -1,4 +1,4 @@
-"""gyronet.stream: LP-BUS and CSV framings, the reconnecting reader, the sensor emulator."""
+"""gyronet.deploy.stream: LP-BUS and CSV framings, the reconnecting reader, the sensor emulator."""
 import math
 import subprocess
 import sys
@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 import serial
 
-import gyronet.stream.reader as reader_module
-from gyronet.stream.lpbus_setup import LpBusSetup
-from gyronet.stream import (CsvLineParser, Fault, FaultCounter, FaultPlan, LpBusLayout, LpBusParser, Sample,
+import gyronet.deploy.stream.reader as reader_module
+from gyronet.deploy.stream.lpbus_setup import LpBusSetup
+from gyronet.deploy.stream import (CsvLineParser, Fault, FaultCounter, FaultPlan, LpBusLayout, LpBusParser, Sample,
                             SampleCheck,
                             encode_csv_header, encode_csv_line, encode_lpbus, lpbus_frame, lrc, make_parser,
                             plan_stream, read_samples)
@@ -300,7 +300,7 @@ def test_read_samples_gives_up_when_told():
 # --- the pty emulator -------------------------------------------------------------------------
 
 def test_pty_emulator_survives_port_drops(tmp_path):
-    from gyronet.stream.pty_sensor import PtySensor, play
+    from gyronet.deploy.stream.pty_sensor import PtySensor, play
 
     columns = recording(120)
     plan = plan_stream(columns, "csv", FaultPlan(garbage_rate=0.1, truncate_rate=0.05,

@@ -17,10 +17,10 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from gyronet.compensator import Compensator
-from gyronet.data import GYRO_COLUMNS, block_means, load_recording, load_truth, write_recording
-from gyronet.offline import SIGMA_COLUMNS
-from gyronet.stream import LpBusLayout
+from gyronet.bundle.compensator import Compensator
+from gyronet.recordings.data import GYRO_COLUMNS, block_means, load_recording, load_truth, write_recording
+from gyronet.bundle.offline import SIGMA_COLUMNS
+from gyronet.deploy.stream import LpBusLayout
 
 ROOT = Path(__file__).resolve().parents[1]
 N_SAMPLES = 400
@@ -86,9 +86,9 @@ def assert_matches_offline(output: pd.DataFrame, time_s, temp_c, out) -> None:
 
 def test_run_stream_in_process_equals_offline(bundle, short_recording, tmp_path):
     """The live loop without the subprocesses: fast enough for every test run."""
-    from gyronet.stream import FaultPlan, plan_stream
-    from gyronet.stream.live import run_stream
-    from gyronet.stream.pty_sensor import play_in_thread
+    from gyronet.deploy.stream import FaultPlan, plan_stream
+    from gyronet.deploy.stream.live import run_stream
+    from gyronet.deploy.stream.pty_sensor import play_in_thread
 
     recording = load_recording(short_recording)
     faults = FaultPlan(garbage_rate=0.05, corrupt_rate=0.03, truncate_rate=0.03, nan_rate=0.02,
@@ -113,7 +113,7 @@ def test_run_stream_in_process_equals_offline(bundle, short_recording, tmp_path)
 
 def test_run_stream_refuses_fields_the_bundle_cannot_use(bundle, tmp_path):
     from gyronet.errors import BundleError
-    from gyronet.stream.live import run_stream
+    from gyronet.deploy.stream.live import run_stream
 
     with pytest.raises(BundleError, match="temp_c"):
         run_stream(bundle, "loop://", tmp_path / "live.csv", layout=LpBusLayout(fields=("gyro", "acc")))
@@ -181,8 +181,8 @@ def test_sigint_stops_cleanly_with_summary(bundle, short_recording, tmp_path, pr
 @pytest.mark.parametrize("how", ["max_samples", "interrupted"])
 def test_run_stream_stops_on_max_samples_and_ctrl_c(bundle, tmp_path, monkeypatch, how):
     """Stop conditions, with the port replaced by a scripted stream of samples and faults."""
-    import gyronet.stream.live as live
-    from gyronet.stream import Fault, Sample
+    import gyronet.deploy.stream.live as live
+    from gyronet.deploy.stream import Fault, Sample
 
     def scripted(*args, **kwargs):
         yield [Fault("garbage", b"\x00")]
@@ -219,22 +219,22 @@ def feeding(chunks):
 
 
 def csv_stream(rows: dict[str, np.ndarray], names: list[str]) -> list[bytes]:
-    from gyronet.stream import encode_csv_line
+    from gyronet.deploy.stream import encode_csv_line
 
     return [encode_csv_line({c: float(rows[c][i]) for c in names}, names) for i in range(len(rows["time_s"]))]
 
 
 def offline(bundle, columns: dict[str, np.ndarray]):
     """``compensate_recording`` on these samples, from a fresh state."""
-    from gyronet.data import Recording
-    from gyronet.offline import compensate_recording
+    from gyronet.recordings.data import Recording
+    from gyronet.bundle.offline import compensate_recording
 
     return compensate_recording(Compensator.load(bundle), Recording(columns, {}, "good samples"))
 
 
 def test_replugged_sensor_with_its_clock_restarted_loses_no_sample(bundle, paper_csv, tmp_path, monkeypatch):
-    import gyronet.stream.live as live
-    from gyronet.stream import encode_csv_header
+    import gyronet.deploy.stream.live as live
+    from gyronet.deploy.stream import encode_csv_header
 
     recording = load_recording(paper_csv).slice(slice(0, 1200))
     names = list(recording.columns)
@@ -254,8 +254,8 @@ def test_replugged_sensor_with_its_clock_restarted_loses_no_sample(bundle, paper
 
 
 def test_resent_header_without_a_needed_column_does_not_stop_the_stream(bundle, paper_csv, tmp_path, monkeypatch):
-    import gyronet.stream.live as live
-    from gyronet.stream import encode_csv_header
+    import gyronet.deploy.stream.live as live
+    from gyronet.deploy.stream import encode_csv_header
 
     recording = load_recording(paper_csv).slice(slice(0, 200))
     names = list(recording.columns)
@@ -274,8 +274,8 @@ def test_resent_header_without_a_needed_column_does_not_stop_the_stream(bundle, 
 def test_signals_stop_the_run_even_when_the_parent_ignored_them(bundle, tmp_path, monkeypatch, signum):
     import os
 
-    import gyronet.stream.live as live
-    from gyronet.stream import Sample
+    import gyronet.deploy.stream.live as live
+    from gyronet.deploy.stream import Sample
 
     def scripted(port, parser, *, should_stop, **kwargs):
         for i in range(2000):
@@ -301,8 +301,8 @@ def test_signals_stop_the_run_even_when_the_parent_ignored_them(bundle, tmp_path
 
 
 def test_a_port_missing_at_start_is_an_error_unless_waited_for(bundle, tmp_path):
-    from gyronet.stream import PortError
-    from gyronet.stream.live import run_stream
+    from gyronet.deploy.stream import PortError
+    from gyronet.deploy.stream.live import run_stream
 
     missing = tmp_path / "no-such-sensor"
     started = time.monotonic()
@@ -340,10 +340,10 @@ def test_a_full_disk_stops_with_one_line_whole_lines_and_the_summary(bundle, tmp
                                                                     summary_writable):
     import os
 
-    import gyronet.stream.live as live
-    import gyronet.stream.output as output_module
-    from gyronet.stream import Sample
-    from gyronet.stream.output import OutputError
+    import gyronet.deploy.stream.live as live
+    import gyronet.deploy.stream.output as output_module
+    from gyronet.deploy.stream import Sample
+    from gyronet.deploy.stream.output import OutputError
 
     def scripted(port, parser, *, should_stop, **kwargs):
         samples = [Sample(0.5 * i, {"temp_c": 25.0 + 0.01 * i, "gyro_x_dps": 0.1, "gyro_y_dps": 0.2, "gyro_z_dps": 0.3})
@@ -418,8 +418,8 @@ def corrupt_lines(lines: list[bytes], names: list[str], n_corrupt: int, seed: in
 
 def play_lines(link: Path, preamble: bytes, lines: list[bytes]):
     """A thread that plays these lines into a pty at ``link`` as fast as the reader takes them."""
-    from gyronet.stream.emulator import Event, StreamPlan
-    from gyronet.stream.pty_sensor import play_in_thread
+    from gyronet.deploy.stream.emulator import Event, StreamPlan
+    from gyronet.deploy.stream.pty_sensor import play_in_thread
 
     plan = StreamPlan([Event(0.0, b"".join(lines[i:i + 64])) for i in range(0, len(lines), 64)], preamble)
     return play_in_thread(plan, link)
@@ -427,8 +427,8 @@ def play_lines(link: Path, preamble: bytes, lines: list[bytes]):
 
 @pytest.mark.parametrize("n_samples", [3000, pytest.param(20000, marks=pytest.mark.slow)])
 def test_corrupt_lines_of_every_kind_lose_no_sample_and_live_equals_offline(bundle, paper_csv, tmp_path, n_samples):
-    from gyronet.stream import encode_csv_header
-    from gyronet.stream.live import run_stream
+    from gyronet.deploy.stream import encode_csv_header
+    from gyronet.deploy.stream.live import run_stream
 
     recording = load_recording(paper_csv).slice(slice(0, n_samples))
     names = list(recording.columns)
@@ -454,9 +454,9 @@ def test_readme_emulator_example_with_lost_frames_equals_offline_and_stays_bound
     intact record's. Today the lost frames make dT/dt diverge (the feature extractor, offline and
     live alike: 10x the intact residual here, 2e6 deg/s at 375 s on the README's record); this
     test waits for that fix."""
-    from gyronet.stream import FaultPlan, plan_stream
-    from gyronet.stream.live import run_stream
-    from gyronet.stream.pty_sensor import play_in_thread
+    from gyronet.deploy.stream import FaultPlan, plan_stream
+    from gyronet.deploy.stream.live import run_stream
+    from gyronet.deploy.stream.pty_sensor import play_in_thread
 
     recording = load_recording(paper_csv).slice(slice(0, 20000))
     plan = plan_stream(recording.columns, "lpbus", FaultPlan(garbage_rate=0.01, corrupt_rate=0.01,
@@ -537,7 +537,7 @@ def full_disk(tmp_path):
 
 @pytest.mark.slow
 def test_stream_py_on_a_full_disk_says_so_in_one_line(bundle, paper_csv, tmp_path, full_disk):
-    from gyronet.stream import encode_csv_header
+    from gyronet.deploy.stream import encode_csv_header
 
     recording = load_recording(paper_csv).slice(slice(0, 8000))
     names = list(recording.columns)
@@ -557,9 +557,9 @@ def test_stream_py_on_a_full_disk_says_so_in_one_line(bundle, paper_csv, tmp_pat
 
 
 def test_emulated_replug_with_a_restarted_clock_through_a_pty(bundle, short_recording, tmp_path):
-    from gyronet.stream import FaultPlan, plan_stream
-    from gyronet.stream.live import run_stream
-    from gyronet.stream.pty_sensor import play_in_thread
+    from gyronet.deploy.stream import FaultPlan, plan_stream
+    from gyronet.deploy.stream.live import run_stream
+    from gyronet.deploy.stream.pty_sensor import play_in_thread
 
     recording = load_recording(short_recording)
     plan = plan_stream(recording.columns, "lpbus", FaultPlan(garbage_rate=0.03, corrupt_rate=0.03,
@@ -590,10 +590,10 @@ def test_run_stream_at_a_realtime_priority_equals_offline_and_gives_the_priority
                                                                                        tmp_path):
     """realtime_priority runs the loop under SCHED_FIFO (where the OS allows it) and changes no number."""
     from gyronet.errors import ConfigError
-    from gyronet.stream import FaultPlan, plan_stream
-    from gyronet.stream.live import run_stream
-    from gyronet.stream.priority import use_realtime
-    from gyronet.stream.pty_sensor import play_in_thread
+    from gyronet.deploy.stream import FaultPlan, plan_stream
+    from gyronet.deploy.stream.live import run_stream
+    from gyronet.deploy.stream.priority import use_realtime
+    from gyronet.deploy.stream.pty_sensor import play_in_thread
 
     try:
         use_realtime(1)()

@@ -17,7 +17,7 @@ from gyronet.errors import GyronetError
 from gyronet.sim import draw_sensor, simulate
 from gyronet.sim.sensor import SURVEY_FIELDS, SensorModel
 from gyronet.sim.survey_sensor import SURVEY_RANGES
-from gyronet.survey import summarize, to_markdown
+from gyronet.analysis.survey import summarize, to_markdown
 
 from conftest import ROOT
 
@@ -189,7 +189,7 @@ def test_a_killed_worker_is_one_line_that_says_how_to_resume(tmp_path, monkeypat
     import joblib
     from joblib.externals.loky.process_executor import TerminatedWorkerError
 
-    from gyronet.survey import SurveySpec, survey
+    from gyronet.analysis.survey import SurveySpec, survey
 
     class Killed:
         def __init__(self, *args, **kwargs):

@@ -7,11 +7,11 @@ import sys
 import numpy as np
 import pytest
 
-from gyronet.data import AXES, load_recording, load_truth
-from gyronet.dataset import block_rmse
+from gyronet.recordings.data import AXES, load_recording, load_truth
+from gyronet.training.dataset import block_rmse
 from gyronet.errors import BundleError, GyronetError
 from gyronet.sim import simulate, write_simulation
-from gyronet.table import held_out_paths, table_rows, to_markdown
+from gyronet.analysis.table import held_out_paths, table_rows, to_markdown
 
 from conftest import FAST_FS_HZ, ROOT
 
@@ -98,7 +98,7 @@ def test_the_startup_offset_removes_a_turn_on_bias_and_its_window_is_not_scored(
 
 
 def test_a_recording_without_truth_is_scored_against_its_own_floor(bundle, cycle_csv, tmp_path):
-    """A real run has no truth: the floor is its own Allan deviation at 60 s in its cold dwell (gyronet.campaign)."""
+    """A real run has no truth: the floor is its own Allan deviation at 60 s in its cold dwell (gyronet.analysis.campaign)."""
     bare = tmp_path / "bare.csv"
     bare.write_text(cycle_csv.read_text())  # the recording alone, no truth beside it
     rows = table_rows(bare, {"gyronet": bundle})

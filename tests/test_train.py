@@ -9,11 +9,11 @@ import pytest
 from omegaconf import OmegaConf
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
-from gyronet.compensator import Compensator
-from gyronet.data import load_recording, load_truth, write_recording
-from gyronet.dataset import block_rmse, static_rate_dps
-from gyronet.pipeline import evaluate_paths
-from gyronet.train import lr_at, residual_report
+from gyronet.bundle.compensator import Compensator
+from gyronet.recordings.data import load_recording, load_truth, write_recording
+from gyronet.training.dataset import block_rmse, static_rate_dps
+from gyronet.training.pipeline import evaluate_paths
+from gyronet.training.train import lr_at, residual_report
 
 from conftest import ROOT
 
@@ -67,7 +67,7 @@ def test_models_train_and_are_deterministic_with_a_seed(paper_csv, name):
     from hydra import compose, initialize_config_dir
     from hydra.utils import instantiate
 
-    from gyronet.train import fit
+    from gyronet.training.train import fit
 
     with initialize_config_dir(str(ROOT / "conf"), version_base="1.3"):
         cfg = compose("train", overrides=[f"model={name}", f"data.path={paper_csv}"])
@@ -99,9 +99,9 @@ def test_held_out_recordings_say_how_much_is_out_of_range_and_their_figures(bund
     low, high = json.loads((bundle / "meta.json").read_text())["temp_range_c"]
     n_outside = int(((recording.temp_c + 15.0 < low) | (recording.temp_c + 15.0 > high)).sum())
     assert 0 < n_outside < len(recording)
-    with caplog.at_level(logging.INFO, logger="gyronet.pipeline"):
+    with caplog.at_level(logging.INFO, logger="gyronet.training.pipeline"):
         results = evaluate_paths(bundle, [str(hot), str(cycle_csv)], 60.0)
-    lines = [r.getMessage() for r in caplog.records if r.name == "gyronet.pipeline"]
+    lines = [r.getMessage() for r in caplog.records if r.name == "gyronet.training.pipeline"]
     warnings = [r.getMessage() for r in caplog.records if r.levelno == logging.WARNING]
     assert results[str(hot)]["n_out_of_range"] == n_outside
     assert warnings == [f"held-out hot.csv: {n_outside} of {len(recording)} samples "

@@ -44,7 +44,7 @@ import numpy as np
 from scipy.ndimage import maximum_filter1d, minimum_filter1d
 from scipy.optimize import linprog
 
-from gyronet.compensator import Compensated
+from gyronet.bundle.compensator import Compensated
 from gyronet.errors import GyronetError
 
 log = logging.getLogger(__name__)

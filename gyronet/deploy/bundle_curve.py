@@ -71,7 +71,7 @@ def clamp_range(curve: Callable[[float], np.ndarray], low_c: float, high_c: floa
 def bundle_curve(bundle_dir: str | Path, grid_points: int = 2001) -> tuple[np.ndarray, np.ndarray, Callable, str]:
     """A bundle's steady-state curve: the grid over its clamp range (or trained range), the curve (n, 3) on it,
     the curve as a function of temperatures (n,) and the model's class; what no cubic can express is refused."""
-    from gyronet.export import read_bundle
+    from gyronet.bundle.io import read_bundle
 
     bundle = read_bundle(bundle_dir)
     if bundle.kalman is not None:

@@ -15,14 +15,14 @@ from pathlib import Path
 from typing import Any
 
 from gyronet.atomic import atomic_output
-from gyronet.bundle_schema import MODEL_FILE
+from gyronet.bundle.schema import MODEL_FILE
 from gyronet.deploy.c import HERE, c_float
 from gyronet.deploy.c._error_bar import error_bar_code
 from gyronet.deploy.c._features import aux_inputs, feature_code
 from gyronet.deploy.c._kalman import kalman_code, no_kalman
 from gyronet.deploy.c._model import model_code
 from gyronet.errors import BundleError
-from gyronet.features import GAP_FACTOR
+from gyronet.model.features import GAP_FACTOR
 
 log = logging.getLogger(__name__)
 
@@ -39,7 +39,7 @@ _STATE = [
     ("double", "offset_still_s", 1, "start-up offset window"),
     ("double", "offset_start_s", 1, ""),
     ("double", "offset_sum_dps", 3, ""),
-    ("double", "watch_times", 33, "the rate watch (gyronet/rate_watch.py): the last SPAN + 1 stamps, a ring"),
+    ("double", "watch_times", 33, "the rate watch (gyronet/recordings/rate_watch.py): the last SPAN + 1 stamps, a ring"),
     ("double", "watch_vote_times", 32, "the stamp of each of the last VOTES voting samples, a ring"),
     ("double", "watch_period_s", 1, "the sample period the stamps show (0: not yet, the bundle's)"),
     ("float", "last_row", "n_features", "features of the last accepted sample"),
@@ -100,8 +100,8 @@ def write_c(bundle_dir: Path, out_dir: Path) -> dict[str, Any]:
     Returns a summary: ``files`` written, model ``kind``, ``state_bytes`` (``sizeof(gyronet_state)``),
     ``aux_inputs``, ``kalman`` and ``kalman_transient_samples``.
     """
-    from gyronet.compensator import Compensator
-    from gyronet.export import load_unfrozen
+    from gyronet.bundle.compensator import Compensator
+    from gyronet.bundle.io import load_unfrozen
 
     bundle_dir, out_dir = Path(bundle_dir), Path(out_dir)
     compensator = Compensator.load(bundle_dir)  # every check a consumer makes, with its messages

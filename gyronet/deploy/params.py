@@ -250,7 +250,7 @@ def export_params(bundle_dir: str | Path, output: str | Path, stack: str = "px4"
         summary["stated_error"] = ("largest |e(T) - e(T_cal)| over T and the boot-calibration temperature T_cal in "
                                    "[TMIN, TMAX], e = cubic - bundle's curve (ArduPilot removes the constant at boot)")
     if history is not None:
-        from gyronet.data import load_recording
+        from gyronet.recordings.data import load_recording
 
         recording = load_recording(history)
         summary["history"] = {"recording": str(history), **history_error(

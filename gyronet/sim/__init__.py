@@ -34,7 +34,8 @@ from gyronet.sim.noise import (NoiseSpec, earth_rate_dps, flicker_rate_noise_dps
                                gyro_noise_dps, quantise, rate_random_walk_dps, white_rate_noise_dps)
 from gyronet.sim.profiles import PROFILES, chamber_profile
 from gyronet.sim.run import ORIENTATIONS_DEG, decimate_columns, g_sensitivity_matrix, loss_mask, turn_on_bias_dps
-from gyronet.sim.sensor import SensorModel, draw_sensor, first_order_lag
+from gyronet.sim.draw import draw_sensor
+from gyronet.sim.sensor import SensorModel, first_order_lag
 
 __all__ = [
     "AccelSpec", "EFFECTS", "EarthSpec", "NoiseSpec", "ORIENTATIONS_DEG", "PROFILES", "SensorModel",

@@ -11,14 +11,15 @@ from typing import Any, Mapping, Sequence, TypeVar
 
 import numpy as np
 
-from gyronet.data import AXES, truth_path, write_recording
+from gyronet.recordings.data import AXES, truth_path, write_recording
 from gyronet.errors import GyronetError
-from gyronet.fastcsv import write_csv
+from gyronet.recordings.fastcsv import write_csv
 from gyronet.sim.effects import apply_effect
 from gyronet.sim.noise import NoiseSpec, earth_rate_dps, gravity_g, gyro_noise_dps, quantise
 from gyronet.sim.profiles import chamber_profile
 from gyronet.sim.run import decimate_columns, g_sensitivity_matrix, lose_rows, orientation_deg, turn_on_bias_dps
-from gyronet.sim.sensor import N_AXES, SensorModel, draw_sensor, per_axis
+from gyronet.sim.draw import draw_sensor
+from gyronet.sim.sensor import N_AXES, SensorModel, per_axis
 
 log = logging.getLogger(__name__)
 
@@ -300,8 +301,8 @@ def write_simulation(sim: Simulation, path: str | os.PathLike, fast: bool = True
     path
         The recording's CSV path.
     fast
-        Use the vectorised writer (:mod:`gyronet.fastcsv`, same format and 9 significant digits
-        of each column's largest value); False uses :func:`gyronet.data.write_recording`
+        Use the vectorised writer (:mod:`gyronet.recordings.fastcsv`, same format and 9 significant digits
+        of each column's largest value); False uses :func:`gyronet.recordings.data.write_recording`
         (``%.9g``, several times slower).
 
     Returns

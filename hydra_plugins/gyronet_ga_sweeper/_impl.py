@@ -1,6 +1,6 @@
 """Ask, launch, tell: the GA sweeper's loop over generations.
 
-Each generation is bred by :mod:`gyronet.ga` from the previous one, sent to the launcher as
+Each generation is bred by :mod:`gyronet.training.ga` from the previous one, sent to the launcher as
 one batch, and scored by the jobs' return values (lower is better; a failed job scores inf).
 Outputs in the sweep dir: ``ga_history.json`` after every generation, and at the end
 ``optimization_results.yaml``, ``best/<best_artifact>/`` and TensorBoard curves in ``tb/``.
@@ -25,7 +25,7 @@ from hydra.types import HydraContext, TaskFunction
 from omegaconf import DictConfig, OmegaConf
 from tqdm import tqdm
 
-from gyronet.ga import Individual, Param, next_generation, random_individual
+from gyronet.training.ga import Individual, Param, next_generation, random_individual
 
 from ._history import HISTORY_FILE, Evaluation, Generation, History, params_key
 from ._space import parse_search_space, tidy, to_overrides

@@ -6,7 +6,7 @@ from typing import Any, Dict, List, Optional, Sequence, Tuple
 from hydra.core.override_parser.overrides_parser import OverridesParser
 from hydra.core.override_parser.types import Override, Transformer
 
-from gyronet.ga import Individual, Param
+from gyronet.training.ga import Individual, Param
 
 SIGNIFICANT_DIGITS = 6
 

@@ -27,8 +27,8 @@ def _size_bytes(size_tool: str, obj) -> int:
 @bench("c_compensator")
 def c_compensator(ctx: Context) -> dict[str, Any]:
     """The generated C (-O2), default bundle, paper recording, against Compensator.process; goals < 2 us, < 8 KB."""
-    from gyronet.compensator import Compensator
-    from gyronet.data import GYRO_COLUMNS, load_recording
+    from gyronet.bundle.compensator import Compensator
+    from gyronet.recordings.data import GYRO_COLUMNS, load_recording
     from gyronet.deploy.c_export import DRIVER, write_c
 
     cc, size_tool = shutil.which("cc") or shutil.which("gcc"), shutil.which("size")

@@ -184,7 +184,7 @@ def bundle_run_dir(ctx: Context, model: str) -> Path:
 
 def trained_bundle(ctx: Context, model: str) -> Path:
     """The bundle of ``model`` trained on :func:`paper_recording`: reused when it loads, else trained."""
-    from gyronet.compensator import Compensator
+    from gyronet.bundle.compensator import Compensator
 
     csv = paper_recording(ctx)
     bundle = bundle_run_dir(ctx, model) / "compensator"

@@ -115,8 +115,8 @@ def _per_sample_us(bundle: Path, recording: Path, n: int = 3000, warm_up: int = 
     """
     import torch
 
-    from gyronet.compensator import Compensator
-    from gyronet.data import load_recording
+    from gyronet.bundle.compensator import Compensator
+    from gyronet.recordings.data import load_recording
 
     staged, whole, floats = Compensator.load(bundle), Compensator.load(bundle), Compensator.load(bundle)
     floats.use_small_chunks()
@@ -159,7 +159,7 @@ def _rss_figures(rss: np.ndarray) -> dict[str, float]:
 def _realtime_allowed() -> bool:
     """Whether this user may run stream.py with realtime_priority (SCHED_FIFO)."""
     from gyronet.errors import ConfigError
-    from gyronet.stream.priority import use_realtime
+    from gyronet.deploy.stream.priority import use_realtime
 
     try:
         use_realtime(1)()
@@ -276,7 +276,7 @@ def stream_rss_hour(ctx: Context) -> dict[str, Any]:
 _HISTORY_SCRIPT = """
 import os, sys, time
 import numpy as np
-from gyronet.stream.live import LiveAllan
+from gyronet.deploy.stream.live import LiveAllan
 def rss_mb():
     with open("/proc/self/statm") as handle:
         return int(handle.read().split()[1]) * os.sysconf("SC_PAGE_SIZE") / 1e6

@@ -1,7 +1,7 @@
 """CSV lines against LP-BUS frames flooded through a pty: emulate_sensor.py -> pty -> stream.py, in turns.
 
 The same 1 kHz recording and default bundle as the ``stream_pty`` flood; three runs a round:
-LP-BUS (the flood path of frames), CSV lines (the flood path of lines, ``gyronet.stream.csv_run``)
+LP-BUS (the flood path of frames), CSV lines (the flood path of lines, ``gyronet.deploy.stream.csv_run``)
 and CSV lines with that path off (``probe.py stream_per_line``: every line through the per-line
 parser, the loop before it). Rounds alternate the three so that a load that comes and goes falls
 on all of them; each run's samples/s and its CPU per sample (what the load changes least) are
@@ -26,8 +26,8 @@ RUNS = {"lpbus": ("lpbus", None), "csv": ("csv", None), "csv_per_line": ("csv", 
 def _parse_cpu_us(recording, n_lines: int = 50_000) -> dict[str, dict[str, float]]:
     """In-process, the recording's first ``n_lines`` as the emulator sends them, fed in reads of 4 and 64 KiB to the
     per-line and the block parser in turns: CPU per line, us (best of three)."""
-    from gyronet.data import load_recording
-    from gyronet.stream import CsvLineParser, plan_stream
+    from gyronet.recordings.data import load_recording
+    from gyronet.deploy.stream import CsvLineParser, plan_stream
 
     columns = {c: v[:n_lines] for c, v in load_recording(recording).columns.items()}
     plan = plan_stream(columns, "csv")

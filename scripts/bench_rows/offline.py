@@ -17,7 +17,7 @@ SAMPLES_GOAL_PER_S = 1e6
 
 def _long_columns(ctx: Context) -> dict[str, np.ndarray]:
     """The paper recording tiled end to end (time keeps increasing, one sample period at each seam)."""
-    from gyronet.data import load_recording
+    from gyronet.recordings.data import load_recording
 
     recording = load_recording(paper_recording(ctx))
     tiles = ctx.size(8, 2)
@@ -29,7 +29,7 @@ def _long_columns(ctx: Context) -> dict[str, np.ndarray]:
 
 def _long_csv(ctx: Context, columns: dict[str, np.ndarray]) -> Path:
     """The tiled recording as a CSV for compensate.py, written once."""
-    from gyronet.data import write_recording
+    from gyronet.recordings.data import write_recording
 
     path = ctx.work_dir / f"compensate_long_{len(columns['time_s'])}.csv"
     if not path.exists():
@@ -44,7 +44,7 @@ def _breakdown(bundle: Path, columns: dict[str, np.ndarray]) -> dict[str, float]
     """Best-of-2 seconds in features, the TorchScript model, and the rest of Compensator.process."""
     import torch
 
-    from gyronet.compensator import CHUNK_ROWS, Compensator
+    from gyronet.bundle.compensator import CHUNK_ROWS, Compensator
 
     compensator = Compensator.load(bundle)
 
@@ -74,7 +74,7 @@ def _breakdown(bundle: Path, columns: dict[str, np.ndarray]) -> dict[str, float]
 
 def _profile_top(bundle: Path, columns: dict[str, np.ndarray], n: int = 4) -> list[str]:
     """The functions with the most own time in one process() call, as 'name tottime s'."""
-    from gyronet.compensator import Compensator
+    from gyronet.bundle.compensator import Compensator
 
     compensator = Compensator.load(bundle)
     profiler = cProfile.Profile()
@@ -86,9 +86,9 @@ def _profile_top(bundle: Path, columns: dict[str, np.ndarray], n: int = 4) -> li
 
 def _io_split(bundle: Path, csv: Path, out_csv: Path) -> dict[str, float]:
     """compensate_file's steps, timed apart in-process: load, compensate, write."""
-    from gyronet.compensator import Compensator
-    from gyronet.data import load_recording
-    from gyronet.offline import compensate_recording, output_columns, write_compensated
+    from gyronet.bundle.compensator import Compensator
+    from gyronet.recordings.data import load_recording
+    from gyronet.bundle.offline import compensate_recording, output_columns, write_compensated
 
     start = time.perf_counter()
     compensator = Compensator.load(bundle)
@@ -102,7 +102,7 @@ def _io_split(bundle: Path, csv: Path, out_csv: Path) -> dict[str, float]:
 @bench("compensate_batch")
 def compensate_batch(ctx: Context) -> dict[str, Any]:
     """Compensator.process on ~3.6 M samples (default bundle) against the PX4 cubic bundle; goal >= 1 M samples/s."""
-    from gyronet.compensator import Compensator
+    from gyronet.bundle.compensator import Compensator
 
     columns = _long_columns(ctx)
     n = len(columns["time_s"])

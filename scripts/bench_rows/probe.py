@@ -54,10 +54,10 @@ class StreamProbe:
     """Per-sample read and write times, time per stage, Allan report durations, RSS."""
 
     def __init__(self, capacity: int, per_sample: bool = False) -> None:
-        import gyronet.stream.live as live
-        from gyronet.compensator import Compensator
-        from gyronet.stream import lpbus_setup
-        from gyronet.stream.events import Fault, n_samples
+        import gyronet.deploy.stream.live as live
+        from gyronet.bundle.compensator import Compensator
+        from gyronet.deploy.stream import lpbus_setup
+        from gyronet.deploy.stream.events import Fault, n_samples
 
         self.read_at: collections.deque[float] = collections.deque()
         # reports: LiveAllan.report durations between samples; final_report: the one finish() makes
@@ -152,7 +152,7 @@ class StreamProbe:
 
 
 def _one_item_chunks(original, *args, **kwargs):
-    from gyronet.stream.events import as_samples
+    from gyronet.deploy.stream.events import as_samples
 
     chunks = original(*args, **kwargs)
     try:
@@ -167,7 +167,7 @@ class EmulateProbe:
     """The time each non-empty write to the pty returned."""
 
     def __init__(self) -> None:
-        from gyronet.stream.pty_sensor import PtySensor
+        from gyronet.deploy.stream.pty_sensor import PtySensor
 
         self.sent_at, self.sizes = array("d"), array("l")
 
@@ -190,7 +190,7 @@ def main() -> int:
     capacity = sizes[-1] if sizes else 10_000_000
     probe = StreamProbe(capacity, mode == "stream_per_sample") if mode.startswith("stream") else EmulateProbe()
     if mode == "stream_per_line":
-        from gyronet.stream.csv_run import LineRun
+        from gyronet.deploy.stream.csv_run import LineRun
 
         LineRun.decode = lambda run, buffer, position, check: (None, 0, len(buffer))
     sys.argv = [script, *overrides]

@@ -28,7 +28,7 @@ def _gyro_columns(n: int, fs_hz: float, seed: int, extra: bool = False) -> dict[
 
 def _recording(ctx: Context, stem: str, n: int, fs_hz: float, extra: bool) -> Path:
     """Write (once) a seeded recording under the work folder; later runs reuse it."""
-    from gyronet.data import write_recording
+    from gyronet.recordings.data import write_recording
 
     path = ctx.work_dir / f"{stem}_{n}.csv"
     if not path.exists():
@@ -96,7 +96,7 @@ def load_460k(ctx: Context) -> dict[str, Any]:
     """load_recording (with validation) against a bare pandas.read_csv of the same file; goal < 0.5 s."""
     import pandas as pd
 
-    from gyronet.data import load_recording
+    from gyronet.recordings.data import load_recording
 
     n = ctx.size(460_000, 46_000)
     csv = _recording(ctx, "load", n, 10.0, extra=True)

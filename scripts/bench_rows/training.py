@@ -15,7 +15,7 @@ from .harness import (ROOT, Context, bench, bundle_run_dir, log_matches, log_tim
 
 TRAIN_GOAL_S = 60.0
 SWEEP_GOAL_S = 600.0
-# what train.log says at the end of each stage of gyronet.pipeline.train_run
+# what train.log says at the end of each stage of gyronet.training.pipeline.train_run
 _STAGE_LINES = {"data": r"^training data ", "fit": r"^validation 60 s RMSE", "export": r"^bundle written"}
 
 
@@ -27,12 +27,12 @@ def _compose(overrides: list[str]):
 
 
 def _fit_in_process(csv: Path, overrides: list[str]) -> dict[str, Any]:
-    """DriftData (cold), the model from conf/ via compose + instantiate, then gyronet.train.fit, timed apart."""
+    """DriftData (cold), the model from conf/ via compose + instantiate, then gyronet.training.train.fit, timed apart."""
     from hydra.utils import instantiate
     from omegaconf import OmegaConf
 
-    from gyronet import dataset
-    from gyronet.train import fit
+    from gyronet.training import dataset
+    from gyronet.training.train import fit
 
     for cached in ("_load_by_key", "_features_by_key"):  # a cold load, whatever ran before in this process
         getattr(getattr(dataset, cached, None), "cache_clear", lambda: None)()

@@ -1,4 +1,4 @@
-"""A bundle's error bar (``gyronet.error_bar``) as C constants and the body of ``drift_sigma``.
+"""A bundle's error bar (``gyronet.model.error_bar``) as C constants and the body of ``drift_sigma``.
 
 The members network is one more RBFNet (``_model._rbf_c`` with its own prefix and ``3 n_members``
 outputs); the spread, the box term and the floor follow ``ErrorBar.sigma``. The generated C is

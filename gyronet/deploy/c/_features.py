@@ -1,4 +1,4 @@
-"""Feature specs (``meta.json`` ``features``) as C: the same causal features as gyronet.features, per sample.
+"""Feature specs (``meta.json`` ``features``) as C: the same causal features as gyronet.model.features, per sample.
 
 Each spec becomes a few statements of ``features_accepted`` (an accepted sample: filters restart on
 an event, then step), ``features_power_on`` (a rejected sample before any accepted one: the fresh
@@ -12,7 +12,7 @@ from typing import Any, Mapping, NamedTuple, Sequence
 
 from gyronet.deploy.c import c_float
 from gyronet.errors import BundleError
-from gyronet.guard import MAX_TEMP_RATE_C_PER_S
+from gyronet.recordings.guard import MAX_TEMP_RATE_C_PER_S
 
 # an unbounded slope for a rate of another column than the temperature
 _NO_SLOPE_BOUND = 3.0e38
@@ -31,7 +31,7 @@ class FeatureCode(NamedTuple):
 
 def aux_inputs(specs: Sequence[Mapping[str, Any]], input_columns: Sequence[str]) -> list[str]:
     """The columns besides temperature that the features read, in the order ``input_columns`` lists them."""
-    from gyronet.features import required_columns
+    from gyronet.model.features import required_columns
 
     needed = [c for c in required_columns(specs) if c not in ("time_s", "temp_c")]
     return [c for c in input_columns if c in needed] + [c for c in needed if c not in input_columns]
@@ -58,7 +58,7 @@ def feature_code(specs: Sequence[Mapping[str, Any]], fs_hz: float, aux: Sequence
             tau_s = float(spec.get("tau_s", 5.0))
             theta = math.exp(-dt_s / tau_s)
             max_slope = MAX_TEMP_RATE_C_PER_S if column == "temp_c" else _NO_SLOPE_BOUND
-            # alpha = 1 - theta^2, beta = (1 - theta)^2 (gyronet.filters.RateTracker); alpha - 1 and
+            # alpha = 1 - theta^2, beta = (1 - theta)^2 (gyronet.model.filters.RateTracker); alpha - 1 and
             # beta / dt in float64, which float32 then holds to its full precision
             constants.append(f"static const tracker_coef TRACKER_{i} = {{{c_float(dt_s)}, {c_float(-theta ** 2)}, "
                              f"{c_float((1 - theta) ** 2 / dt_s)}, {c_float(tau_s)}, {c_float(max_slope)}}};")

@@ -1,7 +1,7 @@
 """The bundle's Kalman stage as C: per axis ``x = F x; x += K (z - H x); y = C x + D z``.
 
 The gain does not depend on the data. For the first samples, until it agrees with the steady gain
-(the one ``gyronet.kalman.KalmanStage`` freezes when it switches to its LTI form) within
+(the one ``gyronet.model.kalman.KalmanStage`` freezes when it switches to its LTI form) within
 ``GAIN_TOL``, the C propagates the covariance as filterpy does (``P = F P F^T + Q``, Joseph-form
 update), per axis since the axes are independent blocks; from then on it uses the steady gain,
 computed here in float64. The recursion forgets its roundings, so float32 serves (the tests
@@ -59,7 +59,7 @@ def _blocks(stage: Any, name: str) -> list[np.ndarray]:
 
 def kalman_code(kalman: Mapping[str, Any], source: str) -> KalmanCode:
     """C constants and body for the ``kalman.json`` content ``kalman``."""
-    from gyronet.kalman import KalmanStage
+    from gyronet.model.kalman import KalmanStage
 
     stage = KalmanStage.from_dict(kalman)
     gains, steady = gain_sequence(stage)

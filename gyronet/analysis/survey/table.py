@@ -1,0 +1,157 @@
+"""The survey's table: median, 90th percentile and worst of each sensor's worst axis, per method, and the goals."""
+from __future__ import annotations
+
+import csv
+import io
+import json
+import logging
+import os
+from pathlib import Path
+from typing import Any, Mapping, Sequence
+
+import numpy as np
+
+from gyronet.atomic import atomic_output
+from gyronet.recordings.data import AXES
+from gyronet.errors import GyronetError
+from gyronet.analysis.survey.sensor_run import VARIANTS, describe_sensor
+
+log = logging.getLogger(__name__)
+
+VARIANT_TEXT = {"deployed": "as deployed (startup.still_s={startup_s:g})",
+                "turn_on_removed": "turn-on bias from the truth", "as_is": "no start-up offset"}
+
+
+def goal_keys(p90_max: float = 1.15, worst_max: float = 1.3, vs_reference_max: float = 1.0 / 3.0) -> dict[str, float]:
+    """The goals a survey checks (the schema of ``conf/survey.yaml``'s ``goals``)."""
+    return {"p90_max": p90_max, "worst_max": worst_max, "vs_reference_max": vs_reference_max}
+
+
+def worst_axis(result: Mapping[str, Any], method: str, variant: str = "deployed") -> float:
+    """A sensor's worst axis (largest residual / floor) for one method and scoring variant."""
+    return float(max(result["methods"][method][variant]))
+
+
+def summarize(results: Sequence[Mapping[str, Any]], ours: str, reference: str,
+              goals: Mapping[str, float] | None = None) -> dict[str, Any]:
+    """Every method's median, 90th percentile and worst over the sensors, the ratio to the reference, the goals.
+
+    Parameters
+    ----------
+    results
+        :func:`gyronet.analysis.survey.sensor_run.run_sensor` results, one per sensor.
+    ours, reference
+        The method the goals are about and the one it must beat (the PX4 cubic).
+    goals
+        ``p90_max``, ``worst_max`` (residual / floor of the worst axis, ``deployed``) and
+        ``vs_reference_max`` (ours / reference, worst axis, every sensor).
+
+    Returns
+    -------
+    dict
+        ``rows`` (method, variant, median, p90, worst, worst_sensor), ``vs_reference``, ``goals``,
+        ``misses`` (sensor seed -> what it misses).
+    """
+    goals = goal_keys(**dict(goals or {}))
+    failed = {int(r["sensor_seed"]): r["error"] for r in results if "error" in r}
+    results = [r for r in results if "error" not in r]
+    if not results:
+        raise GyronetError(f"every sensor of the survey failed; the first: {next(iter(failed.values()))}")
+    seeds = [int(r["sensor_seed"]) for r in results]
+    methods = list(results[0]["methods"])
+    rows = []
+    for method in methods:
+        for variant in VARIANTS:
+            values = np.array([worst_axis(r, method, variant) for r in results])
+            rows.append({"method": method, "variant": variant, "median": float(np.median(values)),
+                         "p90": float(np.percentile(values, 90)), "worst": float(values.max()),
+                         "worst_sensor": seeds[int(values.argmax())]})
+    ratios = np.array([worst_axis(r, ours) / worst_axis(r, reference) for r in results])
+    ours_worst = np.array([worst_axis(r, ours) for r in results])
+    vs_reference = {"worst": float(ratios.max()), "median": float(np.median(ratios)),
+                    "worst_sensor": seeds[int(ratios.argmax())]}
+    misses: dict[int, list[str]] = {}
+    for seed, value, ratio in zip(seeds, ours_worst, ratios):
+        missed = [f"{value:.2f}x > {goals['p90_max']:g}x"] if value > goals["p90_max"] else []
+        missed += [f"worst goal {goals['worst_max']:g}x"] if value > goals["worst_max"] else []
+        missed += [f"/{reference} {ratio:.2f} > {goals['vs_reference_max']:.2f}"] if ratio > goals["vs_reference_max"] else []
+        if missed:
+            misses[seed] = missed
+    ours_row = next(r for r in rows if r["method"] == ours and r["variant"] == "deployed")
+    met = {"p90": ours_row["p90"] <= goals["p90_max"], "worst": ours_row["worst"] <= goals["worst_max"],
+           "vs_reference": vs_reference["worst"] <= goals["vs_reference_max"]}
+    return {"n_sensors": len(results), "failed": failed, "seeds": seeds, "ours": ours, "reference": reference, "rows": rows,
+            "vs_reference": vs_reference, "goals": goals, "met": met, "misses": misses,
+            "seconds_per_sensor": float(np.median([r["seconds"] for r in results]))}
+
+
+def to_markdown(summary: Mapping[str, Any], settings: Mapping[str, Any]) -> str:
+    """The README's survey table, the ratio to the reference, the goals and the sensors that miss one."""
+    ours, reference, goals, met = summary["ours"], summary["reference"], summary["goals"], summary["met"]
+    lines = [f"Residual / noise floor of each sensor's worst axis, {summary['n_sensors']} sensors "
+             f"(distribution {settings.get('distribution', '?')}), trained on {settings.get('train', '?')}, "
+             f"scored on {settings.get('check', '?')} against the truth from t = {settings.get('startup_s', 0):g} s.",
+             "", "| method | scored | median | 90th percentile | worst (sensor) |", "|---|---|---|---|---|"]
+    for row in summary["rows"]:
+        text = VARIANT_TEXT[row["variant"]].format(startup_s=settings.get("startup_s", 0))
+        lines.append(f"| {row['method']} | {text} | {row['median']:.2f} | {row['p90']:.2f} | "
+                     f"{row['worst']:.2f} ({row['worst_sensor']}) |")
+    vs = summary["vs_reference"]
+    ours_row = next(r for r in summary["rows"] if r["method"] == ours and r["variant"] == "deployed")
+
+    def mark(ok: bool) -> str:
+        return "met" if ok else "NOT met"
+
+    lines += ["", f"{ours} / {reference}, worst axis, as deployed: worst sensor {vs['worst']:.3f} "
+                  f"(sensor {vs['worst_sensor']}), median {vs['median']:.3f}.", "",
+              f"Goals for {ours}, as deployed: 90th percentile <= {goals['p90_max']:g}x: {mark(met['p90'])} "
+              f"({ours_row['p90']:.2f}); worst <= {goals['worst_max']:g}x: {mark(met['worst'])} "
+              f"({ours_row['worst']:.2f}); every sensor at least {1 / goals['vs_reference_max']:.3g}x better than "
+              f"{reference}: {mark(met['vs_reference'])} (worst ratio {vs['worst']:.3f}).", ""]
+    misses = summary["misses"]
+    lines.append("Sensors that miss a goal: " + ("none" if not misses else "; ".join(
+        f"{seed} ({', '.join(what)})" for seed, what in sorted(misses.items(), key=lambda kv: int(kv[0])))) + ".")
+    failed = summary.get("failed") or {}
+    if failed:
+        lines += ["", f"Failed, left out of every figure above ({len(failed)}): " + "; ".join(
+            f"{seed} ({error})" for seed, error in sorted(failed.items(), key=lambda kv: int(kv[0]))) + "."]
+    return "\n".join(lines) + "\n"
+
+
+def sensors_csv(results: Sequence[Mapping[str, Any]]) -> str:
+    """One row per sensor: each method's x, y, z and worst axis for every variant, and the sensor's figures."""
+    results = [r for r in results if "error" not in r]
+    methods = list(results[0]["methods"])
+    header = ["sensor_seed", "sharpest_knee_c", "max_rate_gain_deg_per_c", "max_axis_lag_s"]
+    header += [f"{m}:{v}:{a}" for m in methods for v in VARIANTS for a in (*AXES, "worst")]
+    header += ["seconds"]
+    out = io.StringIO()
+    writer = csv.writer(out, lineterminator="\n")
+    writer.writerow(header)
+    for r in sorted(results, key=lambda r: int(r["sensor_seed"])):
+        figures = describe_sensor(r["sensor"])
+        cells: list[Any] = [r["sensor_seed"], f"{figures['sharpest_knee_c']:.2f}",
+                            f"{figures['max_rate_gain_deg_per_c']:.2f}", f"{figures['max_axis_lag_s']:.1f}"]
+        for m in methods:
+            for v in VARIANTS:
+                values = r["methods"][m][v]
+                cells += [f"{x:.4f}" for x in values] + [f"{max(values):.4f}"]
+        cells.append(f"{r['seconds']:.1f}")
+        writer.writerow(cells)
+    return out.getvalue()
+
+
+def write_outputs(results: Sequence[Mapping[str, Any]], summary: Mapping[str, Any], settings: Mapping[str, Any],
+                  output: str | os.PathLike) -> Path:
+    """``output`` (Markdown), and beside it ``.json`` (summary, settings, every sensor) and ``_sensors.csv``."""
+    output = Path(output)
+    output.parent.mkdir(parents=True, exist_ok=True)
+    with atomic_output(output) as tmp:
+        tmp.write_text(to_markdown(summary, settings))
+    everything = {"summary": summary, "settings": settings,
+                  "sensors": [{k: v for k, v in r.items() if k != "reused"} for r in results]}
+    with atomic_output(output.with_suffix(".json")) as tmp:
+        tmp.write_text(json.dumps(everything, indent=1, default=str) + "\n")
+    with atomic_output(output.with_name(output.stem + "_sensors.csv")) as tmp:
+        tmp.write_text(sensors_csv(results))
+    return output

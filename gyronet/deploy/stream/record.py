@@ -1,0 +1,158 @@
+"""``record.py``: a calibration run straight from an LP-BUS sensor, set up first, into a recording CSV.
+
+The sensor is configured as for ``stream.py`` (:func:`~gyronet.deploy.stream.lpbus_setup.start_lpbus`:
+outputs, rate, 32-bit, gyro auto-calibration off), so a chamber run starts from a known state;
+what the sensor reported is written as the CSV's ``#`` metadata (``fs_hz``, ``sensor``,
+``firmware``, ``gyro_source=raw``, ``gyro_autocalibration``, ``lpbus``). Rows are the decoded
+frames (CONTRACT.md section 1), each value as the shortest text that reads back to the same
+number, one ``os.write`` per line, so a kill leaves whole lines. A sensor clock that restarts (a
+replug) keeps ``time_s`` increasing: the new segment continues one interval plus ``restart_gap_s``
+after the last sample, a break in the record. A sensor that comes back after the port was lost is
+set up again (or its first frames checked again) before its rows are written, and refused if it is
+not the one set up at the start.
+"""
+from __future__ import annotations
+
+import contextlib
+import logging
+import os
+import time
+from pathlib import Path
+from typing import Callable, Mapping
+
+from gyronet.errors import ConfigError
+from gyronet.deploy.stream.events import FaultCounter, Sample, SampleCheck
+from gyronet.deploy.stream.lpbus_link import SensorError
+from gyronet.deploy.stream.lpbus_probe import LayoutError
+from gyronet.deploy.stream.lpbus_setup import LpBusSetup, start_lpbus
+from gyronet.deploy.stream.summary import OutputError, write_summary
+from gyronet.deploy.stream.reader import open_port_or_fail, read_samples
+from gyronet.deploy.stream.signals import stop_on_signals
+
+log = logging.getLogger(__name__)
+
+REQUIRED = ("time_s", "temp_c", "gyro_x_dps", "gyro_y_dps", "gyro_z_dps")
+
+
+def record_stream(port: str, output: str | Path, baud: int = 921600, lpbus: LpBusSetup | None = None,
+                  max_samples: int | None = None, duration_s: float | None = None, read_timeout_s: float = 0.05,
+                  reconnect: Mapping[str, float | None] | None = None, clock: Mapping[str, float | None] | None = None,
+                  summary_path: str | Path | None = None, restart_gap_s: float = 1.0,
+                  stop: Callable[[], bool] | None = None) -> dict:
+    """Set the sensor up, record it into ``output`` until told to stop; return the summary.
+
+    ``stop`` is polled between reads; without one, SIGINT and SIGTERM stop the recording there
+    (:func:`~gyronet.deploy.stream.signals.stop_on_signals`), so what was read is written.
+
+    Raises
+    ------
+    PortError, SensorError, ConfigError
+        Before any row: a port that cannot be opened, a sensor that does not answer or cannot be
+        set up, a layout without gyro and temperature.
+    SensorError, LayoutError
+        After a replug: the sensor that came back is another one, or (listening) its first frames
+        do not fit; the rows so far stay whole and the summary (``stopped: refused``) is written.
+    OutputError
+        When the output cannot be written.
+    """
+    lpbus = lpbus or LpBusSetup()
+    opened = open_port_or_fail(port, baud, read_timeout_s)
+    try:
+        start = start_lpbus(opened, port, lpbus)
+        missing = [c for c in REQUIRED if c not in start.layout.columns]
+        if missing:
+            raise ConfigError(f"{port}: the frames ({start.layout.describe()}) lack {', '.join(missing)}: a "
+                              "recording needs the gyro and the temperature (lpbus.fields)")
+        out = _RecordingFile(output, start.layout.columns, _metadata(start))
+    except Exception:
+        opened.close()
+        raise
+    counter, started = FaultCounter(), time.monotonic()
+    signals = contextlib.ExitStack()  # without ``stop``, Ctrl-C is polled too: the chunk in flight is written
+    external_stop = stop or signals.enter_context(stop_on_signals())
+
+    def should_stop() -> bool:
+        return external_stop() or (duration_s is not None and time.monotonic() - started >= duration_s)
+
+    parser = start.parser(SampleCheck(**dict(clock or {})))
+    items = read_samples(opened, parser, url=port, baud=baud, timeout_s=read_timeout_s, should_stop=should_stop,
+                         on_reopen=start.reopen_hook(parser, port), **dict(reconnect or {}))
+    stopped, offset_s, last_s, interval_s, restarts = "port_gone", 0.0, None, 0.0, 0
+    refusal: Exception | None = None
+    try:
+        for item in items:
+            counter.add(item)
+            if not isinstance(item, Sample):
+                log.log(logging.WARNING if counter.counts[item.reason] == 1 else logging.DEBUG, "fault: %s", item)
+                continue
+            if item.new_segment and last_s is not None:
+                restarts += 1
+                offset_s = last_s + interval_s + restart_gap_s - item.time_s
+            row = item.row()
+            time_s = row["time_s"] + offset_s
+            if last_s is not None and not item.new_segment:
+                interval_s = time_s - last_s
+            out.write([time_s, *(row[c] for c in start.layout.columns[1:])])
+            last_s = time_s
+            if max_samples is not None and out.n_rows >= max_samples:
+                stopped = "max_samples"
+                break
+        else:
+            stopped = "interrupted" if external_stop() else "duration" if should_stop() else "port_gone"
+    except KeyboardInterrupt:
+        stopped = "interrupted"
+    except (SensorError, LayoutError) as err:  # after a replug: another sensor, or frames that do not fit
+        stopped, refusal = "refused", err
+    finally:
+        items.close()
+        out.close()
+        signals.close()
+    summary = {"stopped": stopped, "n_samples": out.n_rows, "faults": counter.as_dict(), "n_faults": counter.n_faults,
+               "clock_restarts": restarts, "output": str(out.path), "sensor": start.as_dict(),
+               **({"refused": str(refusal)} if refusal is not None else {})}
+    log.info("recorded %d samples into %s (%s); %s", out.n_rows, out.path, stopped, counter.summary())
+    if summary_path is not None:
+        write_summary(summary_path, summary)
+    if refusal is not None:
+        raise refusal
+    return summary
+
+
+def _metadata(start) -> dict[str, str]:
+    meta = {"gyro_source": "raw", "lpbus": start.layout.describe()}
+    if start.sensor is not None:
+        info = start.sensor
+        meta.update(fs_hz=f"{info.rate_hz:g}", sensor=info.model, firmware=info.firmware,
+                    gyro_autocalibration="on" if info.gyro_autocalibration else "off")
+    else:
+        meta["gyro_autocalibration"] = "unknown (lpbus.configure=false)"
+    return meta
+
+
+class _RecordingFile:
+    """The recording CSV: metadata and header first, then one whole line per ``write``."""
+
+    def __init__(self, path: str | Path, columns: list[str], meta: Mapping[str, str]):
+        self.path, self.n_rows = Path(path), 0
+        try:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            self._fd = os.open(self.path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
+        except OSError as err:
+            raise OutputError(f"{self.path}: cannot write the recording ({err.strerror})") from None
+        head = "".join(f"# {key}={value}\n" for key, value in meta.items()) + ",".join(columns) + "\n"
+        self._write(head)
+
+    def write(self, values: list[float]) -> None:
+        self._write(",".join(repr(float(v)) for v in values) + "\n")
+        self.n_rows += 1
+
+    def _write(self, text: str) -> None:
+        data = text.encode()
+        try:
+            while data:
+                data = data[os.write(self._fd, data):]
+        except OSError as err:
+            raise OutputError(f"{self.path}: cannot write the recording ({err.strerror})") from None
+
+    def close(self) -> None:
+        os.close(self._fd)

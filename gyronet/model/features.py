@@ -1,0 +1,405 @@
+"""Causal drift-model inputs, computed from samples up to now by one stateful extractor.
+
+The batch path (training, ``compensate.py``) and the live path (``stream.py``) call the same
+``FeatureExtractor.process`` with the same state, on a whole recording, on chunks of any size or
+on one sample at a time, and get the same numbers. Every filter (``gyronet.model.filters``) is a linear
+recursion run by ``scipy.signal.lfilter`` with explicit state, so a chunk of one sample costs
+microseconds and a recording of a million samples costs milliseconds.
+
+Lost samples and glitches:
+
+- an interval longer than ``GAP_FACTOR`` sample periods is a gap. dT/dt predicts through a gap
+  up to its time constant and restarts from the mean slope over a longer one; a lag relaxes over
+  the gap exactly; no restart divides an error by the gap, so no loss pattern can make a feature
+  diverge;
+- a row whose temperature is impossible (outside the sensor's range, or a jump no thermal mass
+  allows: ``gyronet.recordings.guard``) or that holds a NaN is a lost sample too: it never enters a filter's
+  state and its features are the prediction, so a glitch corrupts its own row only, flagged in
+  ``rejected``. A step that later samples confirm restarts every filter.
+
+Rates: the filters run at a steady sample clock estimated from the stamps (``gyronet.recordings.rate_watch``):
+jitter and drift of the stamps are averaged out, and where the rate changes the filters are
+rebuilt for the new period (same time constants in seconds) and carry their state over as across
+a short gap, unless ``on_rate_change`` refuses the change (it may raise).
+
+A feature is a small dict (a "spec") that ``meta.json`` stores, so a bundle rebuilds exactly
+the extractor it was trained with:
+
+========== ================================================================= ====================
+kind       what                                                              default name
+========== ================================================================= ====================
+temp       the measured temperature                                          ``temp_c``
+rate       dT/dt from a critically damped alpha-beta tracker, ``tau_s``      ``temp_rate_c_per_s``
+product    T * dT/dt: the paper's "T times the change of T" per second       ``temp_x_rate_c2_per_s``
+lag        ``source`` through a first-order lag of ``tau_s``                 ``<source>_lag<tau>s``
+column     a recording column as it is (or lagged, with ``tau_s`` > 0)       ``<source>``
+hysteresis play (backlash) operator of half-width ``width``: source - play   ``<source>_play<w>``
+power      ``source`` ** ``exponent`` about ``centre``                       ``<source>_pow<k>``
+time       time since the start: exp(-t/``tau_s``) or, without tau, hours    ``warmup<tau>s``/``age_h``
+========== ================================================================= ====================
+
+The product uses dT/dt per second: with a per-sample change dT the paper's T*dT is this
+feature times the sample interval, a constant factor the model absorbs.
+"""
+from __future__ import annotations
+
+import logging
+import math
+from typing import Any, Callable, Mapping, Sequence
+
+import numpy as np
+
+from gyronet.model.filters import Lag, RateTracker
+from gyronet.recordings.guard import MAX_TEMP_RATE_C_PER_S, TempGuard, in_sensor_range
+from gyronet.recordings.rate_watch import RateChange, RateWatch
+
+log = logging.getLogger(__name__)
+
+PAPER_FEATURES: list[dict[str, Any]] = [
+    {"kind": "temp"},
+    {"kind": "rate", "tau_s": 5.0},
+    {"kind": "product"},
+]
+
+GAP_FACTOR = 1.5  # an interval longer than this many sample periods is a gap: lost samples
+PRIOR_TEMP_C = 25.0  # the temperature assumed for rejected rows before any sample was accepted
+
+
+def feature_name(spec: Mapping[str, Any]) -> str:
+    """The column name of a feature spec (``name`` if given, else from its kind and parameters)."""
+    if "name" in spec:
+        return str(spec["name"])
+    kind, source = spec["kind"], spec.get("source", "temp_c")
+    if kind == "temp":
+        return "temp_c"
+    if kind == "rate":
+        return "temp_rate_c_per_s" if source == "temp_c" else f"{source}_rate_per_s"
+    if kind == "product":
+        return "temp_x_rate_c2_per_s"
+    if kind == "lag":
+        return f"{source}_lag{spec['tau_s']:g}s"
+    if kind == "column":
+        tau_s = float(spec.get("tau_s", 0.0))
+        return source if tau_s == 0 else f"{source}_lag{tau_s:g}s"
+    if kind == "hysteresis":
+        return f"{source}_play{spec['width']:g}"
+    if kind == "power":
+        return f"{source}_pow{spec['exponent']:g}"
+    if kind == "time":
+        return f"warmup{spec['tau_s']:g}s" if spec.get("tau_s") else "age_h"
+    raise ValueError(f"unknown feature kind {kind!r}")
+
+
+def required_columns(specs: Sequence[Mapping[str, Any]]) -> list[str]:
+    """Recording columns that a list of specs reads (always ``time_s`` and ``temp_c``)."""
+    needed = ["time_s", "temp_c"]
+    for spec in specs:
+        source = spec.get("source", "temp_c")
+        if spec["kind"] in ("lag", "column", "hysteresis", "power", "rate") and source not in needed:
+            needed.append(source)
+    return needed
+
+
+class FeatureExtractor:
+    """Turn recording columns into model inputs, causally, keeping state between calls.
+
+    Parameters
+    ----------
+    specs
+        Feature specs (see the module docstring); order is the column order of the output.
+    fs_hz
+        Nominal sampling rate the filters are designed for. An interval longer than
+        ``GAP_FACTOR / fs_hz`` is a gap: each filter bridges or restarts (see ``Lag`` and
+        ``RateTracker``); none carries an error over amplified.
+    on_rate_change
+        Called with each ``RateChange`` before the filters follow it; it may raise to refuse it.
+        None: follow every change. ``rate_changes`` lists those since ``reset()``.
+
+    Notes
+    -----
+    A row that ``gyronet.recordings.guard.TempGuard`` rejects (temperature outside the sensor's range or
+    jumping faster than any thermal mass allows, or a NaN in any input) is a lost sample: it
+    never enters a filter's state, and its features are the prediction, those of the last
+    accepted row (time features at its own time). ``rejected`` holds the mask of the last call,
+    ``n_rejected`` the count since ``reset()``.
+    """
+
+    def __init__(self, specs: Sequence[Mapping[str, Any]], fs_hz: float,
+                 on_rate_change: Callable[[RateChange], None] | None = None, snap_hz: float | None = None):
+        self.specs = [dict(s) for s in specs]
+        self.names = [feature_name(s) for s in self.specs]
+        if len(set(self.names)) != len(self.names):
+            raise ValueError(f"duplicate feature names in {self.names}")
+        self.fs_hz = float(fs_hz)
+        self.dt_s = 1.0 / self.fs_hz
+        self.columns = required_columns(self.specs)
+        self._row_columns = [k for k in self.columns if k != "time_s"]
+        self._filters: dict[int, Any] = {}
+        self._play: dict[int, float] = {}
+        self._time_index = [i for i, s in enumerate(self.specs) if s["kind"] == "time"]
+        self.guard = TempGuard()
+        self.watch = RateWatch(self.fs_hz, snap_hz)  # snap_hz: the bundle's rate when resampling
+        self.on_rate_change = on_rate_change
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget the past, as at power-on."""
+        self._last_time_s: float | None = None  # of the last accepted row
+        self._start_time_s: float | None = None
+        self._last_row: list[float] | None = None  # features of the last accepted row
+        self.guard.reset()
+        self.dt_s = 1.0 / self.fs_hz
+        self.watch.reset()
+        self.rate_changes: list[RateChange] = []
+        self._rate_gap = False  # the next accepted row starts a segment at a new period
+        self.rejected = np.zeros(0, dtype=bool)
+        self.n_rejected = 0
+        self._filters.clear()
+        self._play.clear()
+        for i, spec in enumerate(self.specs):
+            if spec["kind"] == "rate":
+                max_slope = MAX_TEMP_RATE_C_PER_S if spec.get("source", "temp_c") == "temp_c" else math.inf
+                self._filters[i] = RateTracker(float(spec.get("tau_s", 5.0)), self.dt_s, max_slope)
+            elif spec["kind"] == "lag" or (spec["kind"] == "column" and float(spec.get("tau_s", 0)) > 0):
+                self._filters[i] = Lag(float(spec["tau_s"]), self.dt_s)
+
+    def process(self, columns: Mapping[str, np.ndarray]) -> np.ndarray:
+        """Features of the next samples.
+
+        Parameters
+        ----------
+        columns
+            At least ``self.columns``, each of shape (n,), in time order, continuing the previous call.
+
+        Returns
+        -------
+        np.ndarray
+            Shape (n, len(self.names)), float64. ``self.rejected`` (n,) marks the rows taken as lost.
+        """
+        time_s = np.asarray(columns["time_s"], dtype=np.float64)
+        n = len(time_s)
+        out = np.empty((n, len(self.specs)))
+        if n == 0:
+            self.rejected = np.zeros(0, dtype=bool)
+            return out
+        if n == 1:
+            return self._process_one(float(time_s[0]), {k: float(columns[k][0]) for k in self._row_columns})
+        first_row = self.watch.n_rows
+        changes = self.watch.scan(time_s)
+        if not changes:
+            return self._process_block(time_s, columns, out)
+        edges = [0, *[c.row - first_row for c in changes], n]
+        rejected = []
+        for change, start, stop in zip([None, *changes], edges[:-1], edges[1:]):
+            if change is not None:
+                self._follow(change)
+            if stop > start:
+                piece = {k: np.asarray(columns[k])[start:stop] for k in self.columns}
+                out[start:stop] = self._process_block(time_s[start:stop], piece, out[start:stop])
+                rejected.append(self.rejected)
+        self.rejected = np.concatenate(rejected)
+        return out
+
+    def _follow(self, change: RateChange) -> None:
+        """Run the filters at the new period from this row on (``on_rate_change`` may refuse: raise)."""
+        if self.on_rate_change is not None:
+            self.on_rate_change(change)
+        log.info("the sampling rate changes from %.6g to %.6g Hz at time_s=%.6f: the feature filters follow",
+                 change.old_hz, change.new_hz, change.time_s)
+        self.rate_changes.append(change)
+        self.dt_s = 1.0 / change.new_hz
+        for i, old in self._filters.items():
+            if isinstance(old, Lag):
+                self._filters[i] = Lag(old.tau_s, self.dt_s)
+                self._filters[i].last_y = old.last_y
+            else:
+                self._filters[i] = RateTracker(old.tau_s, self.dt_s, old.max_slope)
+                self._filters[i].last_level, self._filters[i].last_slope = old.last_level, old.last_slope
+        self._rate_gap = self._last_time_s is not None
+
+    def _process_block(self, time_s: np.ndarray, columns: Mapping[str, np.ndarray], out: np.ndarray) -> np.ndarray:
+        """``process`` on rows of one sample period."""
+        n = len(time_s)
+        if self._start_time_s is None:
+            self._start_time_s = float(time_s[0])
+        source = {k: np.asarray(columns[k], dtype=np.float64) for k in self.columns if k != "time_s"}
+        others = [v for k, v in source.items() if k != "temp_c"]
+        finite = np.isfinite(np.column_stack(others)).all(1) if others else True
+        accepted, step = self.guard.check(time_s, source["temp_c"], finite)
+        carry = self._last_row
+        if accepted.all():
+            self._run_accepted(time_s, source, step, out)
+        else:
+            keep = np.flatnonzero(accepted)
+            if len(keep):
+                out[keep] = self._run_accepted(time_s[keep], {k: v[keep] for k, v in source.items()}, step[keep],
+                                               np.empty((len(keep), len(self.specs))))
+            self._fill_rejected(out, accepted, carry, source)
+        self._time_features(time_s, out)
+        self.rejected = ~accepted
+        self.n_rejected += n - int(accepted.sum())
+        return out
+
+    def _process_one(self, time_s: float, values: dict[str, float]) -> np.ndarray:
+        """``process`` for one live sample, in plain floats: the same operations as a block."""
+        row, rejected = self.process_row(time_s, values)
+        self.rejected = np.array([rejected])
+        return np.array([row])
+
+    def process_row(self, time_s: float, values: Mapping[str, float]) -> tuple[list[float], bool]:
+        """One sample in plain floats (``values``: at least ``self.columns`` but ``time_s``): its features and
+        whether it was rejected. ``process`` on a one-row chunk, without arrays (``self.rejected`` is not set)."""
+        if self._start_time_s is None:
+            self._start_time_s = time_s
+        change = self.watch.step(time_s)
+        if change is not None:
+            self._follow(change)
+        temp_c = values["temp_c"]
+        valid = in_sensor_range(temp_c) and all(math.isfinite(values[k]) for k in self._row_columns)
+        accepted, step = self.guard.step(time_s, temp_c, valid)
+        if accepted:
+            gap_s = None if self._last_time_s is None else time_s - self._last_time_s
+            event = "power_on" if gap_s is None or step else \
+                ("gap" if gap_s > GAP_FACTOR * self.dt_s or self._rate_gap else None)
+            self._rate_gap = False
+            row = self._step_row(values, event, None if event == "power_on" else gap_s)
+            self._last_time_s, self._last_row = time_s, row
+            row = list(row)
+        elif self._last_row is not None:
+            row = list(self._last_row)
+        else:
+            row = self._power_on_rows({k: np.array([values[k]]) for k in self._row_columns})[0].tolist()
+        for i in self._time_index:
+            row[i] = float(self._time_feature(i, np.array([time_s]))[0])
+        self.n_rejected += not accepted
+        return row, not accepted
+
+    def _time_features(self, time_s: np.ndarray, out: np.ndarray) -> None:
+        """Time features at every row's own time (rejected rows too: the clock is not in doubt)."""
+        for i in self._time_index:
+            out[:, i] = self._time_feature(i, time_s)
+
+    def _time_feature(self, i: int, time_s: np.ndarray) -> np.ndarray:
+        """Time feature ``i`` at ``time_s``: hours since the start, or a decay with ``tau_s`` from it."""
+        elapsed_s = time_s - self._start_time_s
+        tau_s = self.specs[i].get("tau_s")
+        return np.exp(-elapsed_s / float(tau_s)) if tau_s else elapsed_s / 3600.0
+
+    def _step_row(self, values: Mapping[str, float], event: str | None, gap_s: float | None) -> list[float]:
+        """The features of one accepted sample (``_run_segment`` for a segment of one, in floats)."""
+        row: list[float] = []
+        rate = None
+        for i, spec in enumerate(self.specs):
+            kind, x = spec["kind"], values.get(spec.get("source", "temp_c"), 0.0)
+            if kind == "temp":
+                value = values["temp_c"]
+            elif i in self._filters:
+                if event is not None:
+                    self._filters[i].restart(x, gap_s)
+                value = self._filters[i].step(x)
+                rate = value if kind == "rate" and rate is None else rate
+            elif kind == "column":
+                value = x
+            elif kind == "product":
+                if rate is None:
+                    raise ValueError("a 'product' feature needs a 'rate' feature before it")
+                value = values["temp_c"] * rate
+            elif kind == "power":
+                value = float(((np.array([x]) - float(spec.get("centre", 0.0))) ** float(spec["exponent"]))[0])
+            elif kind == "hysteresis":
+                value = x - self._run_play(i, [x], float(spec["width"]), event == "power_on")[0]
+            elif kind == "time":
+                value = 0.0  # filled in at the sample's own time
+            else:
+                raise ValueError(f"unknown feature kind {kind!r}")
+            row.append(value)
+        return row
+
+    def _run_accepted(self, time_s: np.ndarray, source: Mapping[str, np.ndarray], step: np.ndarray,
+                      out: np.ndarray) -> np.ndarray:
+        """Run the filters over accepted rows: segments between gaps and confirmed steps."""
+        first_gap_s = None if self._last_time_s is None else float(time_s[0]) - self._last_time_s
+        if len(time_s) == 1:
+            edges = [0, 1]
+        else:
+            breaks = np.flatnonzero((np.diff(time_s) > GAP_FACTOR * self.dt_s) | step[1:]) + 1
+            edges = [0, *breaks.tolist(), len(time_s)]
+        for start, stop in zip(edges[:-1], edges[1:]):
+            gap_s = first_gap_s if start == 0 else float(time_s[start] - time_s[start - 1])
+            if gap_s is None or step[start]:
+                event = "power_on"
+            else:
+                event = "gap" if gap_s > GAP_FACTOR * self.dt_s or (start == 0 and self._rate_gap) else None
+            chunk = {k: v[start:stop] for k, v in source.items()}
+            out[start:stop] = self._run_segment(chunk, event, gap_s)
+        self._rate_gap = False
+        self._last_time_s = float(time_s[-1])
+        self._last_row = out[-1].tolist()
+        return out
+
+    def _run_segment(self, chunk: Mapping[str, np.ndarray], event: str | None, gap_s: float | None) -> np.ndarray:
+        restart_gap_s = None if event == "power_on" else gap_s
+        done: dict[str, np.ndarray] = {}
+        for i, spec in enumerate(self.specs):
+            done[self.names[i]] = self._one(i, spec, chunk, done, event, restart_gap_s)
+        return np.column_stack([done[n] for n in self.names])
+
+    def _one(self, i: int, spec: Mapping[str, Any], chunk: Mapping[str, np.ndarray],
+             done: Mapping[str, np.ndarray], event: str | None, gap_s: float | None) -> np.ndarray:
+        kind, source = spec["kind"], spec.get("source", "temp_c")
+        x = chunk.get(source)
+        if kind in ("temp", "column") and i not in self._filters:
+            return chunk["temp_c"] if kind == "temp" else x
+        if kind in ("lag", "column", "rate"):
+            if event is not None:
+                self._filters[i].restart(float(x[0]), gap_s)
+            return self._filters[i].run(x)
+        if kind == "product":
+            rate = next((v for n, v in done.items() if self._kind_of(n) == "rate"), None)
+            if rate is None:
+                raise ValueError("a 'product' feature needs a 'rate' feature before it")
+            return chunk["temp_c"] * rate
+        if kind == "power":
+            return (x - float(spec.get("centre", 0.0))) ** float(spec["exponent"])
+        if kind == "hysteresis":
+            return x - self._run_play(i, x, float(spec["width"]), event == "power_on")
+        if kind == "time":
+            return np.zeros(len(chunk["temp_c"]))  # filled in by process, at every row's own time
+        raise ValueError(f"unknown feature kind {kind!r}")
+
+    def _fill_rejected(self, out: np.ndarray, accepted: np.ndarray, carry: np.ndarray | None,
+                       source: Mapping[str, np.ndarray]) -> None:
+        """Rejected rows get the last accepted row's features (this call's or the one before)."""
+        previous = np.maximum.accumulate(np.where(accepted, np.arange(len(accepted)), -1))
+        later = ~accepted & (previous >= 0)
+        out[later] = out[previous[later]]
+        before = ~accepted & (previous < 0)
+        if before.any():
+            out[before] = carry if carry is not None else self._power_on_rows({k: v[before] for k, v in source.items()})
+
+    def _power_on_rows(self, source: Mapping[str, np.ndarray]) -> np.ndarray:
+        """Features of rejected rows before any accepted one: a fresh filter's output at a prior (room
+        temperature; other columns as read, 0 where not finite)."""
+        values = {k: np.nan_to_num(v, nan=0.0, posinf=0.0, neginf=0.0) for k, v in source.items()}
+        values["temp_c"] = np.full(len(values["temp_c"]), PRIOR_TEMP_C)
+        rows = np.zeros((len(values["temp_c"]), len(self.specs)))
+        for i, spec in enumerate(self.specs):
+            kind, x = spec["kind"], values.get(spec.get("source", "temp_c"))
+            if kind in ("temp", "column", "lag"):
+                rows[:, i] = values["temp_c"] if kind == "temp" else x
+            elif kind == "power":
+                rows[:, i] = (x - float(spec.get("centre", 0.0))) ** float(spec["exponent"])
+        return rows  # rate, product and hysteresis start at 0
+
+    def _kind_of(self, name: str) -> str:
+        return self.specs[self.names.index(name)]["kind"]
+
+    def _run_play(self, i: int, x: np.ndarray, width: float, power_on: bool) -> np.ndarray:
+        """Play operator: the output follows x only when x leaves the band [p - w, p + w]."""
+        play = float(x[0]) if power_on or i not in self._play else self._play[i]
+        out = []
+        for value in (x.tolist() if isinstance(x, np.ndarray) else x):
+            play = min(max(play, value - width), value + width)
+            out.append(play)
+        self._play[i] = play
+        return np.array(out) if isinstance(x, np.ndarray) else out

@@ -1,0 +1,396 @@
+"""Gaussian radial-basis network for gyro drift: features in, drift per axis out (deg/s).
+
+Two ways to use it:
+
+- the paper's RBF network: every input feeds the Gaussians, nothing else
+  (``linear=False, temp_degree=0, clamp=False``);
+- gyronet's default, a hybrid: a linear term in every input, a polynomial in temperature, and the
+  Gaussians on the inputs a thermal history fully covers (temperature), all evaluated inside the
+  trained box. A Gaussian fades to zero outside the data, so a plain RBF trained on a cooling run
+  has no idea what heating does; the linear rate terms carry that over.
+
+The default also lets training choose each axis's capacity (``select_capacity``,
+``gyronet.training.capacity``): an axis kept at a lower level has zero Gaussian (and polynomial, and
+linear) weights in its row of the output layers. That adds no parameter and no form: the bundle's
+``model.pt`` is the same function of the same features, so an export of its state needs nothing new.
+"""
+from __future__ import annotations
+
+import logging
+from typing import List, Optional, Tuple
+
+import torch
+from torch import Tensor, nn
+from torch.nn import functional
+
+from gyronet.errors import GyronetError
+
+log = logging.getLogger(__name__)
+
+_MIN_WIDTH = 1e-3
+# forward selection's candidate Gaussians: centres every 1 degC of the trained range, these widths
+# (times ``width_init``), from a sharp bias knee to a broad bend. Alone, narrower ones fit the noise: on
+# one pass through the temperatures a degC is a minute of the record (2-3 degC: up to 1.37x on Table
+# 1's x); but a knee 2.5 degC wide needs them (2.5x the floor without), so "ols_narrow" adds them as a
+# start of its own, which the held-out stacking weighs against the others (gyronet/training/starts.py)
+OLS_STEP_C = 1.0
+OLS_WIDTHS_C = (4.0, 6.0, 8.0, 11.0, 16.0)
+OLS_NARROW_WIDTHS_C = (2.5, 3.0) + OLS_WIDTHS_C
+CENTER_INITS = ("kmeans", "ols", "ols_narrow")
+
+
+class _Gaussians1D(torch.autograd.Function):
+    """``RBFNet._gaussians`` on one input, (n, 1) -> (n, K), with its gradient by hand (training only)."""
+
+    @staticmethod
+    def forward(ctx, r: Tensor, centers: Tensor, widths: Tensor) -> Tensor:
+        diff = r - centers.t()
+        scale = -0.5 / (widths * widths)
+        phi = torch.exp(diff * diff * scale)
+        ctx.save_for_backward(diff, scale, phi, widths)
+        return phi
+
+    @staticmethod
+    def backward(ctx, grad_phi: Tensor):
+        # phi = exp(scale d^2), d = r - c, scale = -1 / (2 w^2): dphi/dc = -2 scale d phi, dphi/dw = d^2 phi / w^3
+        diff, scale, phi, widths = ctx.saved_tensors
+        weighted = grad_phi * phi * diff
+        grad_centers = (-2.0 * scale * weighted.sum(0)).unsqueeze(1)
+        grad_widths = (weighted * diff).sum(0) / (widths * widths * widths)
+        return None, grad_centers, grad_widths
+
+
+class RBFNet(nn.Module):
+    """Gaussian RBF network with learnable centres and widths, plus optional linear and polynomial terms.
+
+    Parameters
+    ----------
+    n_inputs
+        Number of input features (columns of ``x``).
+    n_outputs
+        Number of gyro axes.
+    n_centers
+        Number of Gaussian units.
+    width_init
+        Initial width: with ``center_init="kmeans"`` a multiple of the mean distance from a centre
+        to its nearest neighbour; with ``"ols"`` a factor on the candidate widths ``OLS_WIDTHS_C``
+        (``OLS_NARROW_WIDTHS_C`` with ``"ols_narrow"``).
+    rbf_inputs
+        Indices of the inputs that feed the Gaussians; all when None.
+    linear
+        Add a linear term in every normalised input (temperature clamped with ``clamp``, the
+        others unclamped).
+    temp_degree
+        Add powers 2..degree of the (clamped, normalised) temperature input; 0 or 1 for none.
+    temp_index
+        Which input is temperature.
+    clamp
+        Evaluate the Gaussians, the polynomial and the linear temperature term at inputs clamped
+        to the training box.
+    select_capacity
+        Let training choose each axis's capacity on held-out data (``gyronet.training.capacity``): it
+        only zeroes rows of the output layers, so the function and its parameters stay the same.
+    refit_all
+        One recording split into time blocks: once validation has confirmed the fit (and chosen
+        each axis's capacity), the bundle's training continues from it on every block, validation
+        blocks included, for another ``max_epochs`` steps (``gyronet.training.train.fit(for_bundle=True)``),
+        so that no stretch of temperature is left out of the bundle: a bias knee inside a held-out
+        span is otherwise never seen. The reported validation figures are those from before.
+    center_init
+        How training starts the Gaussians: ``"kmeans"``, centres where the data are (k-means++)
+        and one shared width; or ``"ols"``, forward selection by orthogonal least squares from
+        candidates on a temperature grid at several widths, each picked for how much of the
+        training target the other terms leave it explains (Gaussians on temperature only); or
+        ``"ols_narrow"``, the same with candidates down to 2.5 degC wide.
+    validate_init
+        One recording: a validated fit from each ``center_init``, mixed per axis with the weights
+        that minimise the held-out blocks' error (``gyronet.training.starts``; the bundle holds the Gaussians
+        of every start with a weight on some axis); several runs and fixed-budget fits use
+        ``center_init``. No start is better on every sensor: forward selection finds a sharp knee
+        that k-means centres miss, k-means centres follow a broad bend with less noise, and only
+        the narrow candidates follow a knee 2-3 degC wide.
+    kmeans_members
+        With ``validate_init``: the k-means start is the average of this many fits from different
+        k-means++ seeds (bagging), since one seeding makes the held-out error depend on the seed.
+    """
+
+    def __init__(self, n_inputs: int, n_outputs: int = 3, n_centers: int = 32, width_init: float = 1.0,
+                 rbf_inputs: Optional[List[int]] = None, linear: bool = False, temp_degree: int = 0,
+                 temp_index: int = 0, clamp: bool = False, select_capacity: bool = False,
+                 refit_all: bool = False, center_init: str = "kmeans", validate_init: bool = False,
+                 kmeans_members: int = 1):
+        super().__init__()
+        if center_init not in CENTER_INITS:
+            raise ValueError(f"center_init must be one of {', '.join(CENTER_INITS)}, got {center_init!r}")
+        self.n_inputs, self.n_outputs, self.n_centers = n_inputs, n_outputs, n_centers
+        self.width_init = float(width_init)
+        self.min_width = _MIN_WIDTH
+        self.rbf_inputs: List[int] = list(range(n_inputs)) if rbf_inputs is None else [int(i) for i in rbf_inputs]
+        self.use_linear, self.temp_degree, self.temp_index, self.clamp = linear, int(temp_degree), temp_index, clamp
+        self.select_capacity, self.refit_all = bool(select_capacity), bool(refit_all)
+        self.center_init, self.validate_init = center_init, bool(validate_init)
+        if int(kmeans_members) < 1:
+            raise ValueError(f"kmeans_members must be 1 or more, got {kmeans_members!r}")
+        self.kmeans_members = int(kmeans_members)
+        # training keeps every width at or above this (normalised units); ``"ols*"`` set it to their narrowest candidate
+        self.train_min_width = _MIN_WIDTH
+        if (center_init != "kmeans" or self.validate_init) and self.rbf_inputs != [temp_index]:
+            raise ValueError("center_init='ols' selects Gaussians on temperature only: set rbf_inputs to [temp_index]")
+        n_rbf = len(self.rbf_inputs)
+        dtype = torch.float64
+        self.register_buffer("x_mean", torch.zeros(n_inputs, dtype=dtype))
+        self.register_buffer("x_std", torch.ones(n_inputs, dtype=dtype))
+        self.register_buffer("z_low", torch.full((n_inputs,), -1e6, dtype=dtype))
+        self.register_buffer("z_high", torch.full((n_inputs,), 1e6, dtype=dtype))
+        self.register_buffer("y_mean", torch.zeros(n_outputs, dtype=dtype))
+        self.register_buffer("y_std", torch.ones(n_outputs, dtype=dtype))
+        self.register_buffer("rbf_index", torch.tensor(self.rbf_inputs, dtype=torch.long))
+        self.centers = nn.Parameter(torch.zeros(n_centers, n_rbf, dtype=dtype))
+        # width = softplus(raw) + min: always positive, gradient defined everywhere
+        self.raw_width = nn.Parameter(torch.zeros(n_centers, dtype=dtype))
+        self.head = nn.Linear(n_centers, n_outputs, dtype=dtype)
+        self.linear = nn.Linear(n_inputs, n_outputs, bias=False, dtype=dtype)
+        self.poly = nn.Linear(max(self.temp_degree - 1, 1), n_outputs, bias=False, dtype=dtype)
+        if not self.use_linear:
+            self.linear.weight.requires_grad_(False)
+            nn.init.zeros_(self.linear.weight)
+        if self.temp_degree < 2:
+            self.poly.weight.requires_grad_(False)
+            nn.init.zeros_(self.poly.weight)
+
+    def widths(self) -> Tensor:
+        """Gaussian widths in normalised input units, shape (n_centers,)."""
+        return functional.softplus(self.raw_width) + self.min_width
+
+    def parts(self, x: Tensor) -> Tuple[Tensor, Tensor, Tensor]:
+        """Gaussian activations, the linear term's inputs and temperature powers 2..degree, each (n, .).
+
+        The linear term sees the normalised inputs, with temperature clamped to the training box
+        when ``clamp`` is set: outside the trained range every part holds its edge value. The
+        other inputs stay unclamped, so the rate terms carry dT/dt over to heating or cooling
+        the training never saw; at a steady temperature (dT/dt = 0, so T * dT/dt = 0) the whole
+        output holds.
+        """
+        r, z, powers = self._inputs(x)
+        return self._gaussians(r), z, powers
+
+    def _inputs(self, x: Tensor) -> Tuple[Tensor, Tensor, Tensor]:
+        """The parts' inputs, none of which depends on a parameter: the Gaussians' inputs (clamped), the
+        linear term's and the temperature powers."""
+        z = (x - self.x_mean) / self.x_std
+        zc = torch.minimum(torch.maximum(z, self.z_low), self.z_high) if self.clamp else z
+        if self.clamp:
+            t = self.temp_index
+            z = torch.cat([z[:, :t], zc[:, t:t + 1], z[:, t + 1:]], dim=1)
+        temp = zc[:, self.temp_index:self.temp_index + 1]
+        powers = torch.cat([temp.pow(k) for k in range(2, max(self.temp_degree, 2) + 1)], dim=1)
+        return zc.index_select(1, self.rbf_index), z, powers
+
+    def _gaussians(self, r: Tensor) -> Tensor:
+        # phi_k = exp(-|r - c_k|^2 / (2 w_k^2))
+        # (broadcast rather than cdist: cdist's backward is slow and its forward no faster here)
+        diff = r.unsqueeze(1) - self.centers.unsqueeze(0)
+        widths = self.widths()
+        return torch.exp((diff * diff).sum(2) * (-0.5 / (widths * widths)))
+
+    def on_fixed_input(self, x: Tensor):
+        """``forward(x)`` as a function of the parameters alone, for a fit's inner loop on one ``x``.
+
+        What does not depend on a parameter (normalised inputs, clamp, temperature powers) is
+        computed once, and Gaussians on one input take a hand-written gradient (``_Gaussians1D``,
+        a third of autograd's operations): the same numbers as ``forward``, in about half the time
+        a step. The buffers must not change while it is used.
+        """
+        with torch.no_grad():
+            r, z, powers = self._inputs(x)
+
+        def gaussians() -> Tensor:
+            if r.shape[1] == 1:
+                return _Gaussians1D.apply(r, self.centers, self.widths())
+            return self._gaussians(r)
+
+        return lambda: self._output(gaussians(), z, powers)
+
+    def basis(self, x: Tensor) -> Tensor:
+        """Every regressor the output layers combine, side by side."""
+        phi, z, powers = self.parts(x)
+        return torch.cat([phi, z, powers], dim=1)
+
+    def forward(self, x: Tensor) -> Tensor:
+        """Drift (deg/s), shape (n, n_outputs), from features ``x`` of shape (n, n_inputs), float64."""
+        phi, z, powers = self.parts(x)
+        return self._output(phi, z, powers)
+
+    def _output(self, phi: Tensor, z: Tensor, powers: Tensor) -> Tensor:
+        """The output layers on the parts, in deg/s."""
+        return (self.head(phi) + self.linear(z) + self.poly(powers)) * self.y_std + self.y_mean
+
+    @torch.no_grad()
+    def init_from_data(self, x: Tensor, y: Tensor, generator: torch.Generator, ridge: float = 1e-6) -> None:
+        """Normalisation, training box, centres and widths (``center_init``) and a least-squares head."""
+        self.x_mean.copy_(x.mean(0))
+        self.x_std.copy_(x.std(0).clamp_min(1e-12))
+        self.y_mean.copy_(y.mean(0))
+        self.y_std.copy_(y.std(0).clamp_min(1e-12))
+        z = (x - self.x_mean) / self.x_std
+        self.z_low.copy_(z.min(0).values)
+        self.z_high.copy_(z.max(0).values)
+        r = z[:, self.rbf_index]
+        if self.center_init != "kmeans":
+            self._select_centers(x, y)
+        else:
+            self.centers.copy_(_kmeans_pp(r, self.n_centers, generator))
+            nearest = torch.cdist(self.centers, self.centers).fill_diagonal_(float("inf")).min(1).values
+            width = (self.width_init * nearest.clamp_min(1e-3).mean()).clamp_min(2 * _MIN_WIDTH)
+            self.raw_width.fill_(float(_raw_width(width)))
+        self.refit_head(x, y, ridge)
+
+    @torch.no_grad()
+    def _select_centers(self, x: Tensor, y: Tensor) -> None:
+        """Centres and widths by forward selection on the residual of the linear and polynomial terms."""
+        t = self.temp_index
+        scale_c = float(self.x_std[t])
+        step = OLS_STEP_C / scale_c
+        low, high = float(self.z_low[t]), float(self.z_high[t])
+        grid = torch.arange(low, high + 0.5 * step, step, dtype=x.dtype)
+        temp = ((x[:, t] - self.x_mean[t]) / self.x_std[t]).clamp(low, high)
+        # a Gaussian centred in a gap of the training temperatures (a held-out span) is fitted by its
+        # tails alone: candidates only where a training temperature lies within a grid step
+        seen = torch.sort(temp).values
+        after = torch.bucketize(grid, seen).clamp(1, len(seen) - 1)
+        grid = grid[torch.minimum(grid - seen[after - 1], seen[after] - grid).abs() <= step]
+        widths_c = OLS_NARROW_WIDTHS_C if self.center_init == "ols_narrow" else OLS_WIDTHS_C
+        widths = torch.tensor(widths_c, dtype=x.dtype) * self.width_init / scale_c
+        centre_of = grid.repeat(len(widths))
+        width_of = widths.repeat_interleave(len(grid))
+        _, lin, powers = self.parts(x)  # the other terms' regressors; the Gaussians' values are unused
+        # phi_jk = exp(-(T_j - c_k)^2 / (2 w_k^2)), every candidate k
+        candidates = torch.exp(-0.5 * ((temp[:, None] - centre_of[None]) / width_of[None]).pow(2))
+        base = [torch.ones(len(x), 1, dtype=x.dtype)]
+        if self.use_linear:
+            base.append(lin)
+        if self.temp_degree >= 2:
+            base.append(powers)
+        base = torch.cat(base, dim=1)
+        q, _ = torch.linalg.qr(base)
+        # each axis's misfit of the other terms counts alike, however small a share of its swing
+        misfit = y - q @ (q.T @ y)
+        chosen = forward_select(candidates, base, y / misfit.norm(dim=0).clamp_min(1e-300), self.n_centers)
+        self.centers.copy_(centre_of[chosen].unsqueeze(1))
+        self.raw_width.copy_(_raw_width(width_of[chosen].clamp_min(2 * _MIN_WIDTH)))
+        # Adam would narrow a Gaussian onto the noise again
+        self.train_min_width = float(widths.min())
+
+    @torch.no_grad()
+    def keep_widths_(self) -> None:
+        """Hold every width at or above ``train_min_width`` (after an optimizer step)."""
+        if self.train_min_width > 2 * _MIN_WIDTH:
+            self.raw_width.clamp_(min=float(_raw_width(torch.tensor(self.train_min_width, dtype=torch.float64))))
+
+    @torch.no_grad()
+    def refit_head(self, x: Tensor, y: Tensor, ridge: float = 1e-6, level: int = 3,
+                   axes: Optional[List[int]] = None) -> None:
+        """Solve the output layer by ridge least squares for the current centres and widths.
+
+        ``level`` is the capacity of the fitted rows (``gyronet.training.capacity.LEVELS``): 0 a constant,
+        1 + the linear terms, 2 + the temperature powers, 3 + the Gaussians (everything). Only the
+        rows of ``axes`` (all when None) are written; the parts above ``level`` are zero there.
+        """
+        basis = self.basis(x)
+        n_phi, n_lin = self.n_centers, self.n_inputs
+        n_pow = basis.shape[1] - n_phi - n_lin
+        keep = ([level >= 3] * n_phi + [self.use_linear and level >= 1] * n_lin
+                + [self.temp_degree >= 2 and level >= 2] * n_pow)
+        cols = torch.tensor(keep)
+        design = torch.cat([basis[:, cols], torch.ones(len(x), 1, dtype=x.dtype)], dim=1)
+        target = (y - self.y_mean) / self.y_std
+        gram = design.T @ design + ridge * len(x) * torch.eye(design.shape[1], dtype=x.dtype)
+        coef = torch.linalg.solve(gram, design.T @ target)
+        full = torch.zeros(n_phi + n_lin + n_pow, self.n_outputs, dtype=x.dtype)
+        full[cols] = coef[:-1]
+        rows = list(range(self.n_outputs)) if axes is None else [int(a) for a in axes]
+        for a in rows:
+            self.head.weight[a] = full[:n_phi, a]
+            self.head.bias[a] = coef[-1, a]
+            if self.use_linear:
+                self.linear.weight[a] = full[n_phi:n_phi + n_lin, a]
+            if self.temp_degree >= 2:
+                self.poly.weight[a] = full[n_phi + n_lin:, a]
+
+
+def _raw_width(width: Tensor) -> Tensor:
+    """The inverse of ``softplus(raw) + min``: the raw parameter of a width."""
+    return torch.log(torch.expm1(width - _MIN_WIDTH))
+
+
+class SelectionError(GyronetError, ValueError):
+    """Fewer independent candidate Gaussians than centres (a narrow temperature range): no selected start."""
+
+
+def forward_select(candidates: Tensor, base: Tensor, target: Tensor, k: int) -> Tensor:
+    """Orthogonal least squares: the ``k`` candidate columns that, added one at a time to ``base``,
+    most reduce the squared error of every target column together.
+
+    Parameters
+    ----------
+    candidates
+        (n, m) regressors to choose from.
+    base
+        (n, b) regressors always in the model (a constant, the linear terms, ...).
+    target
+        (n, p) targets; each column's squared error counts alike (normalise them first).
+    k
+        How many candidates to select.
+
+    Returns
+    -------
+    Tensor
+        (k,) indices into the columns of ``candidates``, in the order chosen.
+
+    References
+    ----------
+    S. Chen, C. F. N. Cowan, P. M. Grant, "Orthogonal least squares learning algorithm for radial
+    basis function networks", IEEE Trans. Neural Networks 2(2), 1991.
+    """
+    if k > candidates.shape[1]:
+        raise SelectionError(f"cannot select {k} of {candidates.shape[1]} candidate Gaussians")
+    q, _ = torch.linalg.qr(base)
+    residual = target - q @ (q.T @ target)
+    pool = candidates - q @ (q.T @ candidates)
+    floor = 1e-10 * candidates.pow(2).sum(0)
+    chosen: List[int] = []
+    for _ in range(k):
+        energy = pool.pow(2).sum(0)
+        # error reduction of candidate m: sum_p (w_m . r_p)^2 / |w_m|^2, w_m orthogonal to all chosen
+        gain = (pool.T @ residual).pow(2).sum(1) / energy.clamp_min(1e-300)
+        gain[energy <= floor] = -1.0
+        gain[chosen] = -1.0
+        best = int(gain.argmax())
+        if gain[best] < 0:
+            raise SelectionError(f"only {len(chosen)} independent candidate Gaussians, {k} asked for")
+        unit = pool[:, best] / energy[best].sqrt()
+        residual = residual - unit[:, None] * (unit @ residual)[None]
+        pool = pool - unit[:, None] * (unit @ pool)[None]
+        chosen.append(best)
+    return torch.tensor(chosen, dtype=torch.long)
+
+
+def _kmeans_pp(points: Tensor, k: int, generator: torch.Generator, iterations: int = 10) -> Tensor:
+    """k-means++ seeding and a few Lloyd steps: centres where the data are, seeded explicitly."""
+    n = len(points)
+    if n <= k:
+        extra = points[torch.randint(n, (k - n,), generator=generator)] if k > n else points[:0]
+        return torch.cat([points, extra + 1e-3 * torch.randn(extra.shape, generator=generator, dtype=points.dtype)])
+    centers = points[torch.randint(n, (1,), generator=generator)]
+    for _ in range(k - 1):
+        dist = torch.cdist(points, centers).min(1).values.pow(2)
+        pick = torch.multinomial(dist / dist.sum() if dist.sum() > 0 else torch.ones(n, dtype=points.dtype),
+                                 1, generator=generator)
+        centers = torch.cat([centers, points[pick]])
+    for _ in range(iterations):
+        label = torch.cdist(points, centers).argmin(1)
+        for j in range(k):
+            members = points[label == j]
+            if len(members):
+                centers[j] = members.mean(0)
+    return centers

@@ -1,0 +1,305 @@
+"""Calibration campaigns: several runs of one unit in one training, each run a thing of its own.
+
+Real calibration comes in runs (one chamber run, one power-up, one orientation), each with its own
+turn-on bias. A ``Run`` keeps its recording, its causal features (a fresh extractor per run, so no
+filter state leaks across a run's edge) and its drift targets; 10 s blocks are formed within each
+run. With two or more runs the held-out data are whole runs, leave-one-run-out (``fit_by_run``):
+the only honest answer to "does it transfer to another thermal history". Optionally one constant
+per run and axis (``RunOffsets``) is fitted beside the model, as a nuisance parameter, so the
+temperature model learns only what the runs share. A model with ``select_capacity`` gets each
+axis's capacity from every fold's held-out run (``gyronet.training.capacity``): what repeats from run to run.
+"""
+from __future__ import annotations
+
+import copy
+import hashlib
+import json
+import logging
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable, Sequence
+
+import numpy as np
+from torch import nn
+
+from gyronet.errors import GyronetError
+from gyronet.model.features import PAPER_FEATURES
+from gyronet.recordings.data import Recording
+from gyronet.training.dataset import (
+    MIN_TEMP_SPAN_C,
+    MIN_TRAIN_BLOCKS,
+    Blocks,
+    DriftData,
+    TrainingData,
+    _features_by_key,
+    _file_key,
+    check_features_present,
+    check_physical,
+    load_cached,
+    static_rate_dps,
+    to_blocks,
+    trained_range_c,
+)
+from gyronet.training.run_offsets import RunOffsets
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class Run:
+    """One recording of a campaign: its causal features and drift targets at the full rate."""
+
+    recording: Recording
+    name: str
+    features: np.ndarray  # (n, k), from a fresh causal extractor
+    targets: np.ndarray  # (n, 3) gyro minus the static rate, deg/s
+    index: int  # position in the campaign's list of runs
+    path: str
+    # rows the guard accepted (gyronet.recordings.guard); features and targets hold those rows only. None: all
+    accepted: np.ndarray | None = None
+
+    @property
+    def time_s(self) -> np.ndarray:
+        return self.recording.time_s if self.accepted is None else self.recording.time_s[self.accepted]
+
+    @property
+    def temp_c(self) -> np.ndarray:
+        """The accepted temperature readings: a rejected glitch is in no range and no score."""
+        return self.recording.temp_c if self.accepted is None else self.recording.temp_c[self.accepted]
+
+    @property
+    def temp_range_c(self) -> tuple[float, float]:
+        return trained_range_c(self.temp_c, np.ones(len(self.temp_c), dtype=bool))
+
+    def blocks(self, block_s: float) -> Blocks:
+        """Block means within this run only."""
+        return to_blocks(self.time_s, self.features, self.targets, block_s)
+
+    def describe(self) -> dict[str, Any]:
+        """What ``meta.json`` says about the run."""
+        return {"name": self.name, "path": self.path, "sha256": self.recording.checksum(),
+                "n_samples": len(self.recording), "temp_range_c": list(self.temp_range_c)}
+
+
+def run_name(path: str) -> str:
+    """A run's name: its file name without ``.csv`` / ``.csv.gz``."""
+    name = Path(path).name
+    for suffix in (".gz", ".csv"):
+        name = name[:-len(suffix)] if name.endswith(suffix) else name
+    return name
+
+
+def load_runs(paths: Sequence[str], specs: Sequence[dict], static_rate: Sequence[float] | None = None) -> list[Run]:
+    """Load each recording and compute its features from a fresh extractor at the first run's rate."""
+    if len(set(map(str, paths))) != len(paths):
+        raise GyronetError(f"data.paths names a recording twice: {list(paths)}")
+    recordings = [load_cached(str(p)) for p in paths]
+    fs_hz = recordings[0].fs_hz
+    for rec in recordings[1:]:
+        if abs(rec.fs_hz - fs_hz) > 0.01 * fs_hz:
+            raise GyronetError(f"{rec.path}: sampled at {rec.fs_hz:.4g} Hz, but {recordings[0].path} at "
+                               f"{fs_hz:.4g} Hz: the runs of one training need one rate")
+    span_c = max(float(r.temp_c.max()) for r in recordings) - min(float(r.temp_c.min()) for r in recordings)
+    if span_c < MIN_TEMP_SPAN_C:
+        raise GyronetError(f"data.paths: the runs' temperatures span {span_c:.3g} degC together; a drift model "
+                           f"needs at least {MIN_TEMP_SPAN_C:g} degC of range")
+    specs_json = json.dumps([dict(s) for s in specs], sort_keys=True)
+    runs, names = [], set()
+    for index, (path, rec) in enumerate(zip(paths, recordings)):
+        check_physical(rec)  # before any feature work, as for one recording
+        check_features_present(rec, specs)
+        name = run_name(str(path))
+        name = name if name not in names else f"{name}_{index}"
+        names.add(name)
+        features, accepted = _features_by_key(_file_key(str(path)), specs_json, fs_hz)
+        targets = rec.gyro_dps - static_rate_dps(rec, static_rate)
+        if accepted.all():
+            runs.append(Run(rec, name, features, targets, index, str(path)))
+            continue
+        log.warning("%s: %d of %d rows have an impossible temperature (a glitch, gyronet.recordings.guard): left out of "
+                    "training and of the trained range", path, int(np.count_nonzero(~accepted)), len(accepted))
+        runs.append(Run(rec, name, features[accepted], targets[accepted], index, str(path), accepted))
+    return runs
+
+
+@dataclass
+class RunBlocks(Blocks):
+    """Blocks of several runs side by side, with the position (among the training runs) of each block's run."""
+
+    run: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+
+
+def _stack(runs: Sequence[Run], block_s: float) -> RunBlocks:
+    parts = [r.blocks(block_s) for r in runs]
+    return RunBlocks(np.concatenate([b.x for b in parts]), np.concatenate([b.y for b in parts]),
+                     np.concatenate([b.time_s for b in parts]),
+                     np.concatenate([np.full(len(b), i, dtype=np.int64) for i, b in enumerate(parts)]))
+
+
+class RunsData(TrainingData):
+    """Several runs as training data: ``fit`` trains on every run but ``held_out`` and validates on it.
+
+    Parameters
+    ----------
+    runs
+        The campaign's runs (``load_runs``).
+    features, block_s, static_rate_dps
+        As in ``DriftData``.
+    held_out
+        Index of the run held out for validation; None: train on every run (the final fit, whose
+        "validation" is then the longest run, in sample, and only there for ``fit``'s interface).
+    run_offsets
+        Fit one constant per training run and axis beside the model (with two or more training runs).
+    val_startup_s
+        Score the held-out run as deployed with ``startup.still_s`` of this many seconds: its residual
+        minus its mean over the first ``val_startup_s`` s (0: as is). A run's turn-on bias is
+        otherwise part of the score, the same for every model and unknowable from the other runs.
+    """
+
+    def __init__(self, runs: Sequence[Run], features: list, block_s: float = 10.0,
+                 static_rate_dps: Sequence[float] | None = None, held_out: int | None = None,
+                 run_offsets: bool = False, val_startup_s: float = 0.0):
+        self.runs, self.features, self.block_s = list(runs), [dict(s) for s in features], float(block_s)
+        self.static_rate_dps, self.held_out, self.run_offsets = static_rate_dps, held_out, bool(run_offsets)
+        self.val_startup_s = float(val_startup_s or 0.0)
+        self.train_runs = [r for r in self.runs if r.index != held_out]
+        self.paths = [r.path for r in self.runs]
+        self.path = self.paths[0]
+        self.fs_hz = self.runs[0].recording.fs_hz
+        self.train = _stack(self.train_runs, self.block_s)
+        val_run = self.runs[held_out] if held_out is not None else max(self.train_runs, key=lambda r: len(r.time_s))
+        self.recording = (val_run if held_out is None else self.train_runs[0]).recording  # the Kalman stage's record
+        self.val = val_run.blocks(self.block_s)
+        self.val_full = (val_run.time_s, val_run.features, val_run.targets)
+        lows, highs = zip(*(r.temp_range_c for r in self.train_runs))
+        self.temp_range_c = (min(lows), max(highs))  # the union of the training runs' ranges
+        self.offsets = (RunOffsets(self.train.run, len(self.train_runs))
+                        if self.run_offsets and len(self.train_runs) >= 2 else None)
+        for run, blocks in zip(self.train_runs, (r.blocks(self.block_s) for r in self.train_runs)):
+            if len(blocks) < MIN_TRAIN_BLOCKS:
+                raise GyronetError(f"{run.path}: too short to train on ({len(blocks)} blocks of {self.block_s} s)")
+        log.info("training runs %s, %d blocks of %g s%s", ", ".join(r.name for r in self.train_runs), len(self.train),
+                 self.block_s, f"; validation run {val_run.name}" if held_out is not None else "")
+
+    def holding_out(self, index: int) -> "RunsData":
+        """The same runs with run ``index`` held out (one fold of leave-one-run-out)."""
+        return RunsData(self.runs, self.features, self.block_s, self.static_rate_dps, index, self.run_offsets,
+                        self.val_startup_s)
+
+    def val_adjust(self, time_s: np.ndarray, residual: np.ndarray) -> np.ndarray:
+        """The held-out residual as a start-up offset over the first ``val_startup_s`` s would leave it."""
+        if self.held_out is None or self.val_startup_s <= 0:
+            return residual
+        window = time_s < time_s[0] + self.val_startup_s
+        return residual - residual[window].mean(0) if window.any() else residual
+
+    @property
+    def n_runs(self) -> int:
+        return len(self.runs)
+
+
+    def bundle_meta(self) -> dict[str, Any]:
+        """``meta.json`` fields of a multi-run training: every run, a checksum over them, the fitted offsets."""
+        described = [r.describe() for r in self.train_runs]
+        meta: dict[str, Any] = {"runs": described, "data_sha256": hashlib.sha256(
+            "".join(d["sha256"] for d in described).encode()).hexdigest()}
+        if self.offsets is not None:
+            values = self.offsets.values().detach().numpy()
+            meta["run_offsets_dps"] = {r.name: v.tolist() for r, v in zip(self.train_runs, values)}
+        return meta
+
+
+def training_data(path: str | None = None, paths: Sequence[str] | None = None, run_offsets: bool = False,
+                  val_startup_s: float = 0.0, features: list | None = None, block_s: float = 10.0,
+                  val_fraction: float = 0.2, n_blocks: int = 10, val_fold: int | None = None,
+                  val_path: str | None = None, static_rate_dps: Sequence[float] | None = None,
+                  rate_tau_s: float | None = None) -> DriftData | RunsData:
+    """``conf/data``'s target: one recording (``path``, interleaved time blocks) or several (``paths``, by run).
+
+    The options after ``val_startup_s`` are ``DriftData``'s; ``val_fraction``, ``n_blocks``,
+    ``val_fold`` and ``val_path`` apply to one recording only.
+    """
+    if path is not None and paths:
+        raise GyronetError("give data.path=F.csv (one recording) or data.paths=[A.csv,B.csv] (several runs), not both")
+    if path is None and not paths:
+        raise GyronetError("no training data: give data.path=F.csv or data.paths=[A.csv,B.csv]")
+    features = [dict(s) for s in (features or PAPER_FEATURES)]
+    if path is not None or len(paths) == 1:
+        if run_offsets:
+            log.debug("data.run_offsets needs two or more runs: off for one recording")
+        return DriftData(path=str(path if path is not None else paths[0]), features=features, block_s=block_s,
+                         val_fraction=val_fraction, n_blocks=n_blocks, val_fold=val_fold, val_path=val_path,
+                         static_rate_dps=static_rate_dps, rate_tau_s=rate_tau_s)
+    if val_path:
+        raise GyronetError("data.val_path and data.paths: with several runs the held-out data are the runs "
+                           "themselves (leave-one-run-out); drop data.val_path")
+    if rate_tau_s is not None:
+        for spec in features:
+            if spec["kind"] == "rate":
+                spec["tau_s"] = float(rate_tau_s)
+    runs = load_runs([str(p) for p in paths], features, static_rate_dps)
+    return RunsData(runs, features, block_s, static_rate_dps, run_offsets=run_offsets, val_startup_s=val_startup_s)
+
+
+def fit_by_run(model: nn.Module, data: RunsData, optim: Callable | None = None, seed: int = 0, writer: Any = None,
+               **fit_kwargs: Any) -> tuple[dict[str, float], list[dict[str, Any]]]:
+    """Leave-one-run-out, then the final fit on every run.
+
+    Each run is held out in turn; a fresh copy of ``model`` is fitted on the others (early stopping
+    on the held-out run) and scored on it. ``val/*`` are the means over the folds. The final model
+    is trained on every run for the median of the folds' best step counts: with no run left to
+    stop on, the folds say how long a fit on one run fewer should train, and one more run changes
+    that little (a closed-form model needs no count).
+
+    Returns
+    -------
+    metrics, folds
+        The metrics (``val/rmse_dps`` first of all) and each fold's figures.
+    """
+    from gyronet.training.dataset import block_rmse
+    from gyronet.training.train import fit, predict
+
+    untrained = copy.deepcopy(model)
+    from gyronet.training import error_bar_fit
+
+    folds, best_steps, fold_stats = [], [], []  # fold_stats: each held-out run's blocks, for the error bar
+    for run in data.runs:
+        fold_data = data.holding_out(run.index)
+        fold_model = copy.deepcopy(untrained)
+        metrics = fit(fold_model, fold_data, optim, seed=seed, **fit_kwargs)
+        time_s, x, y = fold_data.val_full
+        residual = y - predict(fold_model, x)
+        fold_stats.append(error_bar_fit.held_out_stats(fold_model, None, time_s, x, y, fold_data.train.x))
+        low, high = fold_data.temp_range_c
+        temp = run.temp_c
+        folds.append({"held_out": run.name, "path": run.path,
+                      "train_runs": [r.name for r in fold_data.train_runs],
+                      **{k: v for k, v in metrics.items() if k.startswith(("val/", "train/"))},
+                      # the held-out run's own constant removed: what a perfect start-up offset would leave
+                      "val/rmse_demeaned_dps": block_rmse(time_s, residual - residual.mean(0)).tolist(),
+                      "out_of_range_fraction": float(np.mean((temp < low) | (temp > high)))})
+        if "train/best_step" in metrics:
+            best_steps.append(metrics["train/best_step"])
+        log.info("fold %s held out: 60 s RMSE %s deg/s", run.name,
+                 ", ".join(f"{a}={metrics[f'val/rmse_{a}_dps']:.4g}" for a in "xyz"))
+    steps = int(np.median(best_steps)) if best_steps else None
+    final = fit(model, data, optim, seed=seed, writer=writer, stop_at_step=steps, **fit_kwargs)
+    error_bar_fit.attach(model, error_bar_fit.merge_stats(fold_stats))
+    out = {"train/loss": final["train/loss"]}
+    for key in [f"val/rmse_{a}_dps" for a in "xyz"] + ["val/rmse_dps"]:
+        out[key] = float(np.mean([f[key] for f in folds]))
+    if steps is not None:
+        out["train/steps"] = steps
+    if getattr(model, "select_capacity", False):  # each axis's level, from every fold's held-out run
+        from gyronet.training import capacity
+
+        errors = capacity.from_metrics(folds)
+        levels = capacity.choose(errors)
+        capacity.apply(model, data, levels)
+        out.update(capacity.as_metrics(errors, levels))
+    log.info("leave-one-run-out over %d runs: mean held-out 60 s RMSE %.4g deg/s; final fit on every run%s",
+             data.n_runs, out["val/rmse_dps"], f" for {steps} steps" if steps else "")
+    return out, folds
+
+
+__all__ = ["Run", "RunOffsets", "RunsData", "fit_by_run", "load_runs", "run_name", "training_data"]
