@@ -168,3 +168,13 @@ def test_ga_sweep_of_the_real_training_gives_a_best_bundle_that_transfers(tmp_pa
     out = Compensator.load(sweep / "best" / "compensator").process(recording.columns)
     ratio = residual_report(recording.time_s, out.rate_dps, load_truth(cycle_csv).columns)["ratio_to_floor"]
     assert max(ratio.values()) < 1.5, ratio
+
+
+def test_a_log_file_gets_a_line_per_fit_and_no_progress_bar_frames(tmp_path, paper_csv):
+    proc = subprocess.run([sys.executable, "scripts/train.py", f"data.path={paper_csv}", "train.max_epochs=60",
+                           "train.progress=true", f"hydra.run.dir={tmp_path}"], cwd=ROOT, capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    assert "\r" not in proc.stderr + proc.stdout  # stderr is a pipe here, as when a log file is written
+    log_text = (tmp_path / "train.log").read_text()
+    assert "\r" not in log_text
+    assert "fit: " in log_text and "held-out 60 s RMSE" in log_text

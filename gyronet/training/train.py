@@ -46,7 +46,7 @@ def fit(model: torch.nn.Module, data: DriftData, optim: Callable | None = None, 
     writer
         Optional ``SummaryWriter`` for ``train/loss`` and ``val/rmse_dps`` curves.
     progress
-        Show a tqdm bar.
+        Show a tqdm bar while fitting, on a terminal only; a log gets one line per fit with its figures.
     threads
         Torch threads. One by default: the problem is a few thousand points, where more threads
         only add overhead; sweeps get their parallelism from jobs running side by side.
@@ -91,7 +91,8 @@ def fit(model: torch.nn.Module, data: DriftData, optim: Callable | None = None, 
     best = {"val/rmse_dps": float("inf")}
     best_state, since_best = copy.deepcopy(model.state_dict()), 0
     drift = model.on_fixed_input(x) if hasattr(model, "on_fixed_input") else lambda: model(x)
-    bar = tqdm(range(max_epochs), desc="fit", disable=not progress, leave=False, mininterval=1.0)
+    # a bar on a terminal only (None: tqdm asks stderr); a log file gets the one line per fit below
+    bar = tqdm(range(max_epochs), desc="fit", disable=None if progress else True, leave=False, mininterval=1.0)
     for step in bar:
         for group, base in zip(optimizer.param_groups, base_lrs):
             group["lr"] = lr_at(step, max_epochs, base)
@@ -138,6 +139,8 @@ def fit(model: torch.nn.Module, data: DriftData, optim: Callable | None = None, 
     final = {"train/loss": best["train/loss"], "train/steps": step + 1, "train/best_step": best["train/best_step"],
              **validation_metrics(model, data), **chosen}
     check_finite(final, "the trained model")
+    log.info("fit: %d steps (best %d), held-out 60 s RMSE %s deg/s", final["train/steps"], final["train/best_step"],
+             "/".join(f"{final.get(f'val/rmse_{a}_dps', float('nan')):.4g}" for a in ("x", "y", "z")))
     if for_bundle and getattr(model, "refit_all", False) and every_block(data) is not None:
         # the error bar's held-out blocks, before the refit sees them
         time_s, vx, vy = data.val_full
