@@ -172,9 +172,10 @@ def test_ga_sweep_of_the_real_training_gives_a_best_bundle_that_transfers(tmp_pa
 
 def test_a_log_file_gets_a_line_per_fit_and_no_progress_bar_frames(tmp_path, paper_csv):
     proc = subprocess.run([sys.executable, "scripts/train.py", f"data.path={paper_csv}", "train.max_epochs=60",
-                           "train.progress=true", f"hydra.run.dir={tmp_path}"], cwd=ROOT, capture_output=True, text=True)
+                           "train.progress=true", f"hydra.run.dir={tmp_path}"], cwd=ROOT, capture_output=True)
     assert proc.returncode == 0, proc.stderr[-3000:]
-    assert "\r" not in proc.stderr + proc.stdout  # stderr is a pipe here, as when a log file is written
+    assert b"\r" not in proc.stderr + proc.stdout  # stderr is a pipe here, as when a log file is written (bytes:
+    # text mode would turn the bar's carriage returns into newlines)
     log_text = (tmp_path / "train.log").read_text()
     assert "\r" not in log_text
     assert "fit: " in log_text and "held-out 60 s RMSE" in log_text
