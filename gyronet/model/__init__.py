@@ -11,7 +11,7 @@ _RBF_NAMES = {"RBFNet", "SelectionError", "forward_select", "CENTER_INITS", "OLS
 
 
 def __getattr__(name: str):
-    """``gyronet.model.RBFNet`` (the old module's names, as in older bundles' configs), loaded on use."""
+    """``gyronet.model.rbf.RBFNet`` (the old module's names, as in older bundles' configs), loaded on use."""
     if name in _RBF_NAMES:
         return getattr(importlib.import_module("gyronet.model.rbf"), name)
-    raise AttributeError(f"module 'gyronet.model' has no attribute {name!r}")
+    raise AttributeError(f"module 'gyronet.model.rbf' has no attribute {name!r}")
