@@ -13,10 +13,7 @@ from __future__ import annotations
 
 import copy
 import hashlib
-import json
 import logging
-from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any, Callable, Sequence
 
 import numpy as np
@@ -24,116 +21,11 @@ from torch import nn
 
 from gyronet.errors import GyronetError
 from gyronet.model.features import PAPER_FEATURES
-from gyronet.recordings.data import Recording
-from gyronet.training.dataset import (
-    MIN_TEMP_SPAN_C,
-    MIN_TRAIN_BLOCKS,
-    Blocks,
-    DriftData,
-    TrainingData,
-    _features_by_key,
-    _file_key,
-    check_features_present,
-    check_physical,
-    load_cached,
-    static_rate_dps,
-    to_blocks,
-    trained_range_c,
-)
+from gyronet.training.dataset import MIN_TRAIN_BLOCKS, DriftData, TrainingData
+from gyronet.training.run_data import Run, RunBlocks, load_runs, run_name, stack_runs
 from gyronet.training.run_offsets import RunOffsets
 
 log = logging.getLogger(__name__)
-
-
-@dataclass
-class Run:
-    """One recording of a campaign: its causal features and drift targets at the full rate."""
-
-    recording: Recording
-    name: str
-    features: np.ndarray  # (n, k), from a fresh causal extractor
-    targets: np.ndarray  # (n, 3) gyro minus the static rate, deg/s
-    index: int  # position in the campaign's list of runs
-    path: str
-    # rows the guard accepted (gyronet.recordings.guard); features and targets hold those rows only. None: all
-    accepted: np.ndarray | None = None
-
-    @property
-    def time_s(self) -> np.ndarray:
-        return self.recording.time_s if self.accepted is None else self.recording.time_s[self.accepted]
-
-    @property
-    def temp_c(self) -> np.ndarray:
-        """The accepted temperature readings: a rejected glitch is in no range and no score."""
-        return self.recording.temp_c if self.accepted is None else self.recording.temp_c[self.accepted]
-
-    @property
-    def temp_range_c(self) -> tuple[float, float]:
-        return trained_range_c(self.temp_c, np.ones(len(self.temp_c), dtype=bool))
-
-    def blocks(self, block_s: float) -> Blocks:
-        """Block means within this run only."""
-        return to_blocks(self.time_s, self.features, self.targets, block_s)
-
-    def describe(self) -> dict[str, Any]:
-        """What ``meta.json`` says about the run."""
-        return {"name": self.name, "path": self.path, "sha256": self.recording.checksum(),
-                "n_samples": len(self.recording), "temp_range_c": list(self.temp_range_c)}
-
-
-def run_name(path: str) -> str:
-    """A run's name: its file name without ``.csv`` / ``.csv.gz``."""
-    name = Path(path).name
-    for suffix in (".gz", ".csv"):
-        name = name[:-len(suffix)] if name.endswith(suffix) else name
-    return name
-
-
-def load_runs(paths: Sequence[str], specs: Sequence[dict], static_rate: Sequence[float] | None = None) -> list[Run]:
-    """Load each recording and compute its features from a fresh extractor at the first run's rate."""
-    if len(set(map(str, paths))) != len(paths):
-        raise GyronetError(f"data.paths names a recording twice: {list(paths)}")
-    recordings = [load_cached(str(p)) for p in paths]
-    fs_hz = recordings[0].fs_hz
-    for rec in recordings[1:]:
-        if abs(rec.fs_hz - fs_hz) > 0.01 * fs_hz:
-            raise GyronetError(f"{rec.path}: sampled at {rec.fs_hz:.4g} Hz, but {recordings[0].path} at "
-                               f"{fs_hz:.4g} Hz: the runs of one training need one rate")
-    span_c = max(float(r.temp_c.max()) for r in recordings) - min(float(r.temp_c.min()) for r in recordings)
-    if span_c < MIN_TEMP_SPAN_C:
-        raise GyronetError(f"data.paths: the runs' temperatures span {span_c:.3g} degC together; a drift model "
-                           f"needs at least {MIN_TEMP_SPAN_C:g} degC of range")
-    specs_json = json.dumps([dict(s) for s in specs], sort_keys=True)
-    runs, names = [], set()
-    for index, (path, rec) in enumerate(zip(paths, recordings)):
-        check_physical(rec)  # before any feature work, as for one recording
-        check_features_present(rec, specs)
-        name = run_name(str(path))
-        name = name if name not in names else f"{name}_{index}"
-        names.add(name)
-        features, accepted = _features_by_key(_file_key(str(path)), specs_json, fs_hz)
-        targets = rec.gyro_dps - static_rate_dps(rec, static_rate)
-        if accepted.all():
-            runs.append(Run(rec, name, features, targets, index, str(path)))
-            continue
-        log.warning("%s: %d of %d rows have an impossible temperature (a glitch, gyronet.recordings.guard): left out of "
-                    "training and of the trained range", path, int(np.count_nonzero(~accepted)), len(accepted))
-        runs.append(Run(rec, name, features[accepted], targets[accepted], index, str(path), accepted))
-    return runs
-
-
-@dataclass
-class RunBlocks(Blocks):
-    """Blocks of several runs side by side, with the position (among the training runs) of each block's run."""
-
-    run: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
-
-
-def _stack(runs: Sequence[Run], block_s: float) -> RunBlocks:
-    parts = [r.blocks(block_s) for r in runs]
-    return RunBlocks(np.concatenate([b.x for b in parts]), np.concatenate([b.y for b in parts]),
-                     np.concatenate([b.time_s for b in parts]),
-                     np.concatenate([np.full(len(b), i, dtype=np.int64) for i, b in enumerate(parts)]))
 
 
 class RunsData(TrainingData):
@@ -166,7 +58,7 @@ class RunsData(TrainingData):
         self.paths = [r.path for r in self.runs]
         self.path = self.paths[0]
         self.fs_hz = self.runs[0].recording.fs_hz
-        self.train = _stack(self.train_runs, self.block_s)
+        self.train = stack_runs(self.train_runs, self.block_s)
         val_run = self.runs[held_out] if held_out is not None else max(self.train_runs, key=lambda r: len(r.time_s))
         self.recording = (val_run if held_out is None else self.train_runs[0]).recording  # the Kalman stage's record
         self.val = val_run.blocks(self.block_s)
@@ -302,4 +194,4 @@ def fit_by_run(model: nn.Module, data: RunsData, optim: Callable | None = None, 
     return out, folds
 
 
-__all__ = ["Run", "RunOffsets", "RunsData", "fit_by_run", "load_runs", "run_name", "training_data"]
+__all__ = ["Run", "RunBlocks", "RunOffsets", "RunsData", "fit_by_run", "load_runs", "run_name", "training_data"]

@@ -34,7 +34,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from gyronet.recordings.data import AXES
-from gyronet.analysis.diagnose.screen import _dots, _folds, _fwl, _scores, _standardise, choose_ridge
+from gyronet.analysis.diagnose.cv import _dots, _folds, _fwl, _scores, _standardise, choose_ridge
 
 
 @dataclass

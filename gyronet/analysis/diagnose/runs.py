@@ -32,14 +32,15 @@ import torch
 
 from gyronet.recordings.data import AXES
 from gyronet.analysis.diagnose.options import DiagnoseOptions
-from gyronet.analysis.diagnose.advice import advice_lines, orientation_label, record_advice, runs_advice
+from gyronet.analysis.diagnose.advice import orientation_label, record_advice, runs_advice
 from gyronet.analysis.diagnose.candidates import candidate_specs, describe, effect_kind, effect_params, effect_source
 from gyronet.analysis.diagnose.candidates import source_columns
 from gyronet.analysis.diagnose.choose import approximations, complexity, ranked
-from gyronet.analysis.diagnose.report import alternatives_lines, approximation_sentence
+from gyronet.analysis.diagnose.report import approximation_sentence
 from gyronet.analysis.diagnose.rows import ScreenRows
 from gyronet.analysis.diagnose.runlevel import RunCandidate, run_candidates, screen_runs
 from gyronet.analysis.diagnose.screen import screen
+from gyronet.analysis.diagnose.runs_report import write_runs_report
 from gyronet.bundle.io import save_bundle
 from gyronet.model.features import feature_name
 from gyronet.training.pipeline import _jsonable, _meta
@@ -250,53 +251,8 @@ def diagnose_runs(paths: Sequence[str], data_options: Mapping[str, Any], make_mo
                                              "metrics": s.metrics, "folds": s.folds} for s in stages],
                "next": [a.to_dict() for a in advice]}
     (out_dir / "diagnosis_details.json").write_text(json.dumps(_jsonable(details), indent=2) + "\n")
-    _write_report(out_dir, diagnosis, details, orientations, advice)
+    write_runs_report(out_dir, diagnosis, details, orientations, advice)
     return diagnosis
-
-
-def _write_report(out_dir: Path, diagnosis: Mapping[str, Any], details: Mapping[str, Any],
-                  orientations: Sequence[str | None], advice: Sequence[Any]) -> None:
-    runs = details["runs"]
-    lines = [f"# Diagnosis of a campaign of {len(runs)} runs", "",
-             "Runs: " + ", ".join(f"`{r['name']}` ({r['orientation'] or 'no accelerometer'})" for r in runs) + ".", "",
-             "## Result", "", "Held-out 60 s residual, deg/s (leave-one-run-out, mean over the held-out runs):", "",
-             "| model | x | y | z |", "| --- | --- | --- | --- |"]
-    for label in ("baseline", "final"):
-        lines.append(f"| {label} | " + " | ".join(f"{diagnosis[label]['val_rmse_dps'][a]:.4g}" for a in AXES) + " |")
-    lines.append("")
-    if not diagnosis["effects"]:
-        lines += ["**No effect found**: nothing constant within a run changes between the runs by more than the "
-                  "runs change within themselves, and nothing within the runs passes the test. The final bundle "
-                  "is the baseline.", ""]
-    for k, effect in enumerate(diagnosis["effects"], start=1):
-        lines += [f"### {k}. `{effect['kind']}` of `{effect['source']}` {effect['params']}, axes "
-                  f"{', '.join(effect['axes'])}", "", effect["evidence"], ""]
-        lines += alternatives_lines(effect)
-        if effect["kind"] == "run_offset" and effect["alternatives"]:
-            lines += [f"With {len(runs)} runs in the orientations {', '.join(str(o) for o in orientations)}, a "
-                      "per-run offset (turn-on bias) and the orientation columns above are the same contrast "
-                      "between the runs: this campaign cannot separate them (see what to record next).", ""]
-    lines += ["## How it was tested", ""]
-    for r, round_ in enumerate(details["rounds"], start=1):
-        if "run_level" in round_:
-            lines += [f"Round {r}, run-level: the {1 - details['options']['alpha']:.0%} quantile of the best "
-                      f"score under {round_['run_n_shifts']} deals of the runs' pieces (each with a within-run shift) is "
-                      f"{round_['run_null_quantile']:.3g}.", "", "| candidate | score | p |", "| --- | --- | --- |"]
-            lines += [f"| `{c['name']}` | {c['score']:.3g} | {c['p_value']:.3g} |" for c in round_["run_level"][:6]]
-            lines.append("")
-        if "candidates" in round_:
-            lines += [f"Round {r}, within the runs: the {1 - details['options']['alpha']:.0%} quantile of the "
-                      f"best shifted score is {round_['null_max_quantile']:.3g}.", "",
-                      "| candidate | score | p |", "| --- | --- | --- |"]
-            lines += [f"| `{c['name']}` | {c['score']:.3g} | {c['p_value']:.3g} |" for c in round_["candidates"][:6]]
-            lines.append("")
-        lines += [f"- tried `{t['spec']}`: score {t['score']:.3g}, confirmation {t['confirm']:.3g}"
-                  + ("" if t.get("harmless", True) else ", but the held-out runs' residual as it is got worse")
-                  + "." for t in round_["tried"]]
-        if round_["tried"]:
-            lines.append("")
-    lines += advice_lines(advice)
-    (out_dir / "report.md").write_text("\n".join(lines))
 
 
 __all__ = ["diagnose_runs"]
