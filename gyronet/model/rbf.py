@@ -23,41 +23,14 @@ import torch
 from torch import Tensor, nn
 from torch.nn import functional
 
-from gyronet.errors import GyronetError
+from gyronet.model.rbf_gaussians import Gaussians1D
+from gyronet.model.rbf_init import (CENTER_INITS, MIN_WIDTH, OLS_NARROW_WIDTHS_C, OLS_STEP_C, OLS_WIDTHS_C,
+                                    SelectionError, forward_select, kmeans_pp, raw_width)
+
+__all__ = ["CENTER_INITS", "OLS_NARROW_WIDTHS_C", "OLS_STEP_C", "OLS_WIDTHS_C", "RBFNet", "SelectionError",
+           "forward_select"]
 
 log = logging.getLogger(__name__)
-
-_MIN_WIDTH = 1e-3
-# forward selection's candidate Gaussians: centres every 1 degC of the trained range, these widths
-# (times ``width_init``), from a sharp bias knee to a broad bend. Alone, narrower ones fit the noise: on
-# one pass through the temperatures a degC is a minute of the record (2-3 degC: up to 1.37x on Table
-# 1's x); but a knee 2.5 degC wide needs them (2.5x the floor without), so "ols_narrow" adds them as a
-# start of its own, which the held-out stacking weighs against the others (gyronet/training/starts.py)
-OLS_STEP_C = 1.0
-OLS_WIDTHS_C = (4.0, 6.0, 8.0, 11.0, 16.0)
-OLS_NARROW_WIDTHS_C = (2.5, 3.0) + OLS_WIDTHS_C
-CENTER_INITS = ("kmeans", "ols", "ols_narrow")
-
-
-class _Gaussians1D(torch.autograd.Function):
-    """``RBFNet._gaussians`` on one input, (n, 1) -> (n, K), with its gradient by hand (training only)."""
-
-    @staticmethod
-    def forward(ctx, r: Tensor, centers: Tensor, widths: Tensor) -> Tensor:
-        diff = r - centers.t()
-        scale = -0.5 / (widths * widths)
-        phi = torch.exp(diff * diff * scale)
-        ctx.save_for_backward(diff, scale, phi, widths)
-        return phi
-
-    @staticmethod
-    def backward(ctx, grad_phi: Tensor):
-        # phi = exp(scale d^2), d = r - c, scale = -1 / (2 w^2): dphi/dc = -2 scale d phi, dphi/dw = d^2 phi / w^3
-        diff, scale, phi, widths = ctx.saved_tensors
-        weighted = grad_phi * phi * diff
-        grad_centers = (-2.0 * scale * weighted.sum(0)).unsqueeze(1)
-        grad_widths = (weighted * diff).sum(0) / (widths * widths * widths)
-        return None, grad_centers, grad_widths
 
 
 class RBFNet(nn.Module):
@@ -124,7 +97,7 @@ class RBFNet(nn.Module):
             raise ValueError(f"center_init must be one of {', '.join(CENTER_INITS)}, got {center_init!r}")
         self.n_inputs, self.n_outputs, self.n_centers = n_inputs, n_outputs, n_centers
         self.width_init = float(width_init)
-        self.min_width = _MIN_WIDTH
+        self.min_width = MIN_WIDTH
         self.rbf_inputs: List[int] = list(range(n_inputs)) if rbf_inputs is None else [int(i) for i in rbf_inputs]
         self.use_linear, self.temp_degree, self.temp_index, self.clamp = linear, int(temp_degree), temp_index, clamp
         self.select_capacity, self.refit_all = bool(select_capacity), bool(refit_all)
@@ -133,7 +106,7 @@ class RBFNet(nn.Module):
             raise ValueError(f"kmeans_members must be 1 or more, got {kmeans_members!r}")
         self.kmeans_members = int(kmeans_members)
         # training keeps every width at or above this (normalised units); ``"ols*"`` set it to their narrowest candidate
-        self.train_min_width = _MIN_WIDTH
+        self.train_min_width = MIN_WIDTH
         if (center_init != "kmeans" or self.validate_init) and self.rbf_inputs != [temp_index]:
             raise ValueError("center_init='ols' selects Gaussians on temperature only: set rbf_inputs to [temp_index]")
         n_rbf = len(self.rbf_inputs)
@@ -197,7 +170,7 @@ class RBFNet(nn.Module):
         """``forward(x)`` as a function of the parameters alone, for a fit's inner loop on one ``x``.
 
         What does not depend on a parameter (normalised inputs, clamp, temperature powers) is
-        computed once, and Gaussians on one input take a hand-written gradient (``_Gaussians1D``,
+        computed once, and Gaussians on one input take a hand-written gradient (``Gaussians1D``,
         a third of autograd's operations): the same numbers as ``forward``, in about half the time
         a step. The buffers must not change while it is used.
         """
@@ -206,7 +179,7 @@ class RBFNet(nn.Module):
 
         def gaussians() -> Tensor:
             if r.shape[1] == 1:
-                return _Gaussians1D.apply(r, self.centers, self.widths())
+                return Gaussians1D.apply(r, self.centers, self.widths())
             return self._gaussians(r)
 
         return lambda: self._output(gaussians(), z, powers)
@@ -239,10 +212,10 @@ class RBFNet(nn.Module):
         if self.center_init != "kmeans":
             self._select_centers(x, y)
         else:
-            self.centers.copy_(_kmeans_pp(r, self.n_centers, generator))
+            self.centers.copy_(kmeans_pp(r, self.n_centers, generator))
             nearest = torch.cdist(self.centers, self.centers).fill_diagonal_(float("inf")).min(1).values
-            width = (self.width_init * nearest.clamp_min(1e-3).mean()).clamp_min(2 * _MIN_WIDTH)
-            self.raw_width.fill_(float(_raw_width(width)))
+            width = (self.width_init * nearest.clamp_min(1e-3).mean()).clamp_min(2 * MIN_WIDTH)
+            self.raw_width.fill_(float(raw_width(width)))
         self.refit_head(x, y, ridge)
 
     @torch.no_grad()
@@ -277,15 +250,15 @@ class RBFNet(nn.Module):
         misfit = y - q @ (q.T @ y)
         chosen = forward_select(candidates, base, y / misfit.norm(dim=0).clamp_min(1e-300), self.n_centers)
         self.centers.copy_(centre_of[chosen].unsqueeze(1))
-        self.raw_width.copy_(_raw_width(width_of[chosen].clamp_min(2 * _MIN_WIDTH)))
+        self.raw_width.copy_(raw_width(width_of[chosen].clamp_min(2 * MIN_WIDTH)))
         # Adam would narrow a Gaussian onto the noise again
         self.train_min_width = float(widths.min())
 
     @torch.no_grad()
     def keep_widths_(self) -> None:
         """Hold every width at or above ``train_min_width`` (after an optimizer step)."""
-        if self.train_min_width > 2 * _MIN_WIDTH:
-            self.raw_width.clamp_(min=float(_raw_width(torch.tensor(self.train_min_width, dtype=torch.float64))))
+        if self.train_min_width > 2 * MIN_WIDTH:
+            self.raw_width.clamp_(min=float(raw_width(torch.tensor(self.train_min_width, dtype=torch.float64))))
 
     @torch.no_grad()
     def refit_head(self, x: Tensor, y: Tensor, ridge: float = 1e-6, level: int = 3,
@@ -316,81 +289,3 @@ class RBFNet(nn.Module):
                 self.linear.weight[a] = full[n_phi:n_phi + n_lin, a]
             if self.temp_degree >= 2:
                 self.poly.weight[a] = full[n_phi + n_lin:, a]
-
-
-def _raw_width(width: Tensor) -> Tensor:
-    """The inverse of ``softplus(raw) + min``: the raw parameter of a width."""
-    return torch.log(torch.expm1(width - _MIN_WIDTH))
-
-
-class SelectionError(GyronetError, ValueError):
-    """Fewer independent candidate Gaussians than centres (a narrow temperature range): no selected start."""
-
-
-def forward_select(candidates: Tensor, base: Tensor, target: Tensor, k: int) -> Tensor:
-    """Orthogonal least squares: the ``k`` candidate columns that, added one at a time to ``base``,
-    most reduce the squared error of every target column together.
-
-    Parameters
-    ----------
-    candidates
-        (n, m) regressors to choose from.
-    base
-        (n, b) regressors always in the model (a constant, the linear terms, ...).
-    target
-        (n, p) targets; each column's squared error counts alike (normalise them first).
-    k
-        How many candidates to select.
-
-    Returns
-    -------
-    Tensor
-        (k,) indices into the columns of ``candidates``, in the order chosen.
-
-    References
-    ----------
-    S. Chen, C. F. N. Cowan, P. M. Grant, "Orthogonal least squares learning algorithm for radial
-    basis function networks", IEEE Trans. Neural Networks 2(2), 1991.
-    """
-    if k > candidates.shape[1]:
-        raise SelectionError(f"cannot select {k} of {candidates.shape[1]} candidate Gaussians")
-    q, _ = torch.linalg.qr(base)
-    residual = target - q @ (q.T @ target)
-    pool = candidates - q @ (q.T @ candidates)
-    floor = 1e-10 * candidates.pow(2).sum(0)
-    chosen: List[int] = []
-    for _ in range(k):
-        energy = pool.pow(2).sum(0)
-        # error reduction of candidate m: sum_p (w_m . r_p)^2 / |w_m|^2, w_m orthogonal to all chosen
-        gain = (pool.T @ residual).pow(2).sum(1) / energy.clamp_min(1e-300)
-        gain[energy <= floor] = -1.0
-        gain[chosen] = -1.0
-        best = int(gain.argmax())
-        if gain[best] < 0:
-            raise SelectionError(f"only {len(chosen)} independent candidate Gaussians, {k} asked for")
-        unit = pool[:, best] / energy[best].sqrt()
-        residual = residual - unit[:, None] * (unit @ residual)[None]
-        pool = pool - unit[:, None] * (unit @ pool)[None]
-        chosen.append(best)
-    return torch.tensor(chosen, dtype=torch.long)
-
-
-def _kmeans_pp(points: Tensor, k: int, generator: torch.Generator, iterations: int = 10) -> Tensor:
-    """k-means++ seeding and a few Lloyd steps: centres where the data are, seeded explicitly."""
-    n = len(points)
-    if n <= k:
-        extra = points[torch.randint(n, (k - n,), generator=generator)] if k > n else points[:0]
-        return torch.cat([points, extra + 1e-3 * torch.randn(extra.shape, generator=generator, dtype=points.dtype)])
-    centers = points[torch.randint(n, (1,), generator=generator)]
-    for _ in range(k - 1):
-        dist = torch.cdist(points, centers).min(1).values.pow(2)
-        pick = torch.multinomial(dist / dist.sum() if dist.sum() > 0 else torch.ones(n, dtype=points.dtype),
-                                 1, generator=generator)
-        centers = torch.cat([centers, points[pick]])
-    for _ in range(iterations):
-        label = torch.cdist(points, centers).argmin(1)
-        for j in range(k):
-            members = points[label == j]
-            if len(members):
-                centers[j] = members.mean(0)
-    return centers

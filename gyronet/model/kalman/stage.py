@@ -13,7 +13,6 @@ from __future__ import annotations
 import copy
 import json
 import logging
-import math
 import os
 from pathlib import Path
 from typing import Any, Mapping, Sequence
@@ -23,7 +22,11 @@ from filterpy.kalman import KalmanFilter
 from scipy import signal
 
 from gyronet.errors import GyronetError
-from gyronet.model.kalman.identify import AXES, KalmanModel, companion, companion_covariance
+from gyronet.model.kalman.identify import AXES, KalmanModel
+from gyronet.model.kalman.state_space import axis_matrices, lfilter_state, q_rate_for_time_constant
+
+__all__ = ["DEFAULT_MODE", "DEFAULT_Q_RATE_DPS2_PER_S", "FORMAT", "KalmanInputError", "KalmanStage", "MODES", "VERSION",
+           "q_rate_for_time_constant"]
 
 log = logging.getLogger(__name__)
 
@@ -115,7 +118,7 @@ class KalmanStage:
             raise GyronetError(f"q_rate_dps2_per_s must be > 0 (per axis), got {q.tolist()}")
         self.mode, self.q_rate_dps2_per_s = mode, q
         self.initial_rate_sigma_dps, self.gain_tol = float(initial_rate_sigma_dps), float(gain_tol)
-        self._blocks = [_axis_matrices(m, float(qi) / self.model.fs_hz, mode) for m, qi in zip(self.model.axes, q)]
+        self._blocks = [axis_matrices(m, float(qi) / self.model.fs_hz, mode) for m, qi in zip(self.model.axes, q)]
         self._slices, start = [], 0
         for block in self._blocks:
             self._slices.append(slice(start, start + len(block["F"])))
@@ -204,7 +207,7 @@ class KalmanStage:
         b, a = np.zeros((len(systems), m + 1)), np.zeros((len(systems), m + 1))
         for i, (bi, ai, *_ ) in enumerate(systems):
             b[i, :len(bi)], a[i, :len(ai)] = bi, ai
-        zi = np.array([_lfilter_state(b[i], a[i], A, C, x) for i, (_, _, A, C, x) in enumerate(systems)])
+        zi = np.array([lfilter_state(b[i], a[i], A, C, x) for i, (_, _, A, C, x) in enumerate(systems)])
         self._lti = (b, a, zi)
         self.steady_since = self.n_samples
         log.debug("kalman gain steady after %d samples (%.1f s)", self.n_samples, self.n_samples / self.model.fs_hz)
@@ -287,66 +290,3 @@ class KalmanStage:
     def load(cls, path: str | os.PathLike) -> "KalmanStage":
         """Read a stage written by :meth:`save`."""
         return cls.from_dict(json.loads(Path(path).read_text()))
-
-
-def _axis_matrices(axis, q_rate_per_sample: float, mode: str) -> dict[str, np.ndarray]:
-    """F, Q, H, the prior P0 (drift part) and the output row C, D of one axis.
-
-    The state is ``[r, d_1, ..., d_p]``; an order-0 model (no drift found) has ``[r]`` alone.
-    """
-    p = axis.order
-    n = p + 1
-    F, Q, P0 = np.zeros((n, n)), np.zeros((n, n)), np.zeros((n, n))
-    F[0, 0], F[1:, 1:] = 1.0, companion(np.asarray(axis.ar))
-    Q[0, 0] = q_rate_per_sample
-    P0[1:, 1:] = companion_covariance(np.asarray(axis.ar), axis.q_drift_dps2)
-    H, drift = np.zeros(n), np.zeros(n)
-    H[0] = 1.0
-    if p:
-        Q[1, 1] = axis.q_drift_dps2
-        H[1] = drift[1] = 1.0
-    rate = np.eye(n)[0]
-    # y = C x + D z: r_hat, r_hat + d_hat or z - d_hat
-    C, D = {"rate": (rate, 0.0), "smooth": (rate + drift, 0.0), "bias": (-drift, 1.0)}[mode]
-    return {"F": F, "Q": Q, "P0": P0, "H": H, "C": C, "D": D}
-
-
-def _lfilter_state(b: np.ndarray, a: np.ndarray, A: np.ndarray, C: np.ndarray, x: np.ndarray) -> np.ndarray:
-    """The lfilter ``zi`` whose free response equals the state-space one from ``x``.
-
-    With zero input the state-space output is ``C A^j x``; lfilter's is linear in ``zi``. Matching
-    the first m samples (m = the order) fixes ``zi``: the DF2T free-response matrix is triangular
-    with a unit diagonal.
-    """
-    m = len(a) - 1
-    free = np.empty(m)
-    state = x.copy()
-    for j in range(m):
-        free[j] = C @ state
-        state = A @ state
-    basis = np.column_stack([signal.lfilter(b, a, np.zeros(m), zi=np.eye(m)[i])[0] for i in range(m)])
-    return np.linalg.solve(basis, free)
-
-
-def q_rate_for_time_constant(r_dps2: float | np.ndarray, fs_hz: float, tau_s: float) -> np.ndarray:
-    """The ``q_rate_dps2_per_s`` that gives the rate estimate a time constant ``tau_s``.
-
-    For a random walk in white noise of variance ``R`` the steady gain is ``K``, the pole
-    ``1 - K = exp(-1 / (fs tau))``, and ``q dt = K^2 R / (1 - K)`` (the drift state ignored).
-
-    Parameters
-    ----------
-    r_dps2
-        White noise variance per sample, (deg/s)^2 (``AxisModel.r_dps2``), scalar or per axis.
-    fs_hz
-        Sampling rate, Hz.
-    tau_s
-        Wanted time constant (63 % of a step), s.
-
-    Returns
-    -------
-    np.ndarray
-        q per axis, (deg/s)^2/s.
-    """
-    gain = 1.0 - math.exp(-1.0 / (fs_hz * tau_s))
-    return np.asarray(r_dps2, dtype=np.float64) * gain ** 2 / (1.0 - gain) * fs_hz
