@@ -26,6 +26,8 @@ The model, in the order it is computed:
 ``gyro = true_rate + drift + noise`` holds per sample, with the quantisation error counted in the
 noise; the turn-on bias and the g-sensitivity term are part of the drift (and in their own truth
 columns too).
+
+May import: ``gyronet.errors``, ``gyronet.atomic``, ``gyronet.recordings``.
 """
 from gyronet.sim.core import (AccelSpec, EarthSpec, Simulation, TemperatureSpec, rate_steps_dps,
                               simulate, write_simulation)

@@ -18,7 +18,7 @@ output a filtered rate. Per axis, with k the sample index:
 :func:`identify` fits the model to the network's residual on the training record,
 :class:`KalmanStage` runs it causally (``reset``, ``process``, ``to_dict``/``from_dict``,
 ``save``/``load``), and :func:`allan_cost` and :func:`step_response` measure what it buys and
-costs. KALMAN.md has the design and the measurements.
+costs. docs/guides/kalman.md has the design and the measurements.
 """
 from gyronet.model.kalman.costs import allan_cost, step_response
 from gyronet.model.kalman.identify import AxisModel, KalmanModel, identify

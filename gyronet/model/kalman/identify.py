@@ -196,7 +196,7 @@ def identify(residual_dps: np.ndarray, fs_hz: float, *, max_order: int = 1, exac
         order with the smallest BIC is kept. The default 1 is the
         first-order Gauss-Markov drift: on simulated residuals of a temperature fit, BIC picked
         orders 2-3 with near-unit and negative roots and a singular information matrix (the
-        residual is a deterministic thermal error, not a stationary process), see KALMAN.md.
+        residual is a deterministic thermal error, not a stationary process), see docs/guides/kalman.md.
     exact_bins
         Periodogram bins used one by one (the lowest frequencies, where the drift is).
     band_ratio

@@ -35,7 +35,7 @@ FORMAT = "gyronet.model.kalman"
 VERSION = 1
 DEFAULT_MODE = "smooth"
 # A time constant of about 1 s on the noisiest of the paper's axes (N = 5.89 deg/sqrt(h)):
-# tau = sqrt(R / fs) / sqrt(q) = (5.89 / 60) / sqrt(1e-2) = 0.98 s; measured in KALMAN.md.
+# tau = sqrt(R / fs) / sqrt(q) = (5.89 / 60) / sqrt(1e-2) = 0.98 s; measured in docs/guides/kalman.md.
 DEFAULT_Q_RATE_DPS2_PER_S = 1e-2
 # Blocks this long go through scipy.signal.lfilter; shorter ones (live samples) through the same
 # recursion written in numpy, which skips lfilter's per-call overhead.
@@ -67,7 +67,7 @@ class KalmanStage:
         - ``"rate"``: the estimated true rate ``r_hat``: white noise and residual drift removed.
           Equal to ``smooth`` at any useful bandwidth (the drift is not observable there); with a
           tiny ``q_rate`` it takes a rotation step for drift and needs about the drift's
-          correlation time (an hour in KALMAN.md) to pass it.
+          correlation time (an hour in docs/guides/kalman.md) to pass it.
         - ``"bias"``: ``c - d_hat``: only the residual drift removed, the white noise and fast
           rotations passed at full bandwidth; a no-op unless ``q_rate`` is tiny.
     q_rate_dps2_per_s
@@ -82,7 +82,7 @@ class KalmanStage:
         Switch to the steady-state gain once no element of K moves by more than this in a step.
         The drift part of K keeps creeping towards its limit for as long as the drift's
         correlation time; the switched filter stays within 1e-6 deg/s of the fully time-varying
-        one on the records of KALMAN.md.
+        one on the records of docs/guides/kalman.md.
 
     Notes
     -----
