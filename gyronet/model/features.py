@@ -22,24 +22,8 @@ jitter and drift of the stamps are averaged out, and where the rate changes the 
 rebuilt for the new period (same time constants in seconds) and carry their state over as across
 a short gap, unless ``on_rate_change`` refuses the change (it may raise).
 
-A feature is a small dict (a "spec") that ``meta.json`` stores, so a bundle rebuilds exactly
-the extractor it was trained with:
-
-========== ================================================================= ====================
-kind       what                                                              default name
-========== ================================================================= ====================
-temp       the measured temperature                                          ``temp_c``
-rate       dT/dt from a critically damped alpha-beta tracker, ``tau_s``      ``temp_rate_c_per_s``
-product    T * dT/dt: the paper's "T times the change of T" per second       ``temp_x_rate_c2_per_s``
-lag        ``source`` through a first-order lag of ``tau_s``                 ``<source>_lag<tau>s``
-column     a recording column as it is (or lagged, with ``tau_s`` > 0)       ``<source>``
-hysteresis play (backlash) operator of half-width ``width``: source - play   ``<source>_play<w>``
-power      ``source`` ** ``exponent`` about ``centre``                       ``<source>_pow<k>``
-time       time since the start: exp(-t/``tau_s``) or, without tau, hours    ``warmup<tau>s``/``age_h``
-========== ================================================================= ====================
-
-The product uses dT/dt per second: with a per-sample change dT the paper's T*dT is this
-feature times the sample interval, a constant factor the model absorbs.
+A feature is a small dict (a "spec", :mod:`gyronet.model.feature_specs` lists the kinds) that
+``meta.json`` stores, so a bundle rebuilds exactly the extractor it was trained with.
 """
 from __future__ import annotations
 
@@ -49,55 +33,14 @@ from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 
+from gyronet.model.feature_specs import (GAP_FACTOR, PAPER_FEATURES, PRIOR_TEMP_C, feature_name, play_operator,
+                                         power_on_rows, required_columns)
+from gyronet.model.feature_kinds import row_values, segment_values
 from gyronet.model.filters import Lag, RateTracker
 from gyronet.recordings.guard import MAX_TEMP_RATE_C_PER_S, TempGuard, in_sensor_range
 from gyronet.recordings.rate_watch import RateChange, RateWatch
 
 log = logging.getLogger(__name__)
-
-PAPER_FEATURES: list[dict[str, Any]] = [
-    {"kind": "temp"},
-    {"kind": "rate", "tau_s": 5.0},
-    {"kind": "product"},
-]
-
-GAP_FACTOR = 1.5  # an interval longer than this many sample periods is a gap: lost samples
-PRIOR_TEMP_C = 25.0  # the temperature assumed for rejected rows before any sample was accepted
-
-
-def feature_name(spec: Mapping[str, Any]) -> str:
-    """The column name of a feature spec (``name`` if given, else from its kind and parameters)."""
-    if "name" in spec:
-        return str(spec["name"])
-    kind, source = spec["kind"], spec.get("source", "temp_c")
-    if kind == "temp":
-        return "temp_c"
-    if kind == "rate":
-        return "temp_rate_c_per_s" if source == "temp_c" else f"{source}_rate_per_s"
-    if kind == "product":
-        return "temp_x_rate_c2_per_s"
-    if kind == "lag":
-        return f"{source}_lag{spec['tau_s']:g}s"
-    if kind == "column":
-        tau_s = float(spec.get("tau_s", 0.0))
-        return source if tau_s == 0 else f"{source}_lag{tau_s:g}s"
-    if kind == "hysteresis":
-        return f"{source}_play{spec['width']:g}"
-    if kind == "power":
-        return f"{source}_pow{spec['exponent']:g}"
-    if kind == "time":
-        return f"warmup{spec['tau_s']:g}s" if spec.get("tau_s") else "age_h"
-    raise ValueError(f"unknown feature kind {kind!r}")
-
-
-def required_columns(specs: Sequence[Mapping[str, Any]]) -> list[str]:
-    """Recording columns that a list of specs reads (always ``time_s`` and ``temp_c``)."""
-    needed = ["time_s", "temp_c"]
-    for spec in specs:
-        source = spec.get("source", "temp_c")
-        if spec["kind"] in ("lag", "column", "hysteresis", "power", "rate") and source not in needed:
-            needed.append(source)
-    return needed
 
 
 class FeatureExtractor:
@@ -262,13 +205,14 @@ class FeatureExtractor:
             event = "power_on" if gap_s is None or step else \
                 ("gap" if gap_s > GAP_FACTOR * self.dt_s or self._rate_gap else None)
             self._rate_gap = False
-            row = self._step_row(values, event, None if event == "power_on" else gap_s)
+            row = row_values(self.specs, self._filters, self._run_play, values, event,
+                             None if event == "power_on" else gap_s)
             self._last_time_s, self._last_row = time_s, row
             row = list(row)
         elif self._last_row is not None:
             row = list(self._last_row)
         else:
-            row = self._power_on_rows({k: np.array([values[k]]) for k in self._row_columns})[0].tolist()
+            row = power_on_rows(self.specs, {k: np.array([values[k]]) for k in self._row_columns})[0].tolist()
         for i in self._time_index:
             row[i] = float(self._time_feature(i, np.array([time_s]))[0])
         self.n_rejected += not accepted
@@ -284,36 +228,6 @@ class FeatureExtractor:
         elapsed_s = time_s - self._start_time_s
         tau_s = self.specs[i].get("tau_s")
         return np.exp(-elapsed_s / float(tau_s)) if tau_s else elapsed_s / 3600.0
-
-    def _step_row(self, values: Mapping[str, float], event: str | None, gap_s: float | None) -> list[float]:
-        """The features of one accepted sample (``_run_segment`` for a segment of one, in floats)."""
-        row: list[float] = []
-        rate = None
-        for i, spec in enumerate(self.specs):
-            kind, x = spec["kind"], values.get(spec.get("source", "temp_c"), 0.0)
-            if kind == "temp":
-                value = values["temp_c"]
-            elif i in self._filters:
-                if event is not None:
-                    self._filters[i].restart(x, gap_s)
-                value = self._filters[i].step(x)
-                rate = value if kind == "rate" and rate is None else rate
-            elif kind == "column":
-                value = x
-            elif kind == "product":
-                if rate is None:
-                    raise ValueError("a 'product' feature needs a 'rate' feature before it")
-                value = values["temp_c"] * rate
-            elif kind == "power":
-                value = float(((np.array([x]) - float(spec.get("centre", 0.0))) ** float(spec["exponent"]))[0])
-            elif kind == "hysteresis":
-                value = x - self._run_play(i, [x], float(spec["width"]), event == "power_on")[0]
-            elif kind == "time":
-                value = 0.0  # filled in at the sample's own time
-            else:
-                raise ValueError(f"unknown feature kind {kind!r}")
-            row.append(value)
-        return row
 
     def _run_accepted(self, time_s: np.ndarray, source: Mapping[str, np.ndarray], step: np.ndarray,
                       out: np.ndarray) -> np.ndarray:
@@ -331,41 +245,11 @@ class FeatureExtractor:
             else:
                 event = "gap" if gap_s > GAP_FACTOR * self.dt_s or (start == 0 and self._rate_gap) else None
             chunk = {k: v[start:stop] for k, v in source.items()}
-            out[start:stop] = self._run_segment(chunk, event, gap_s)
+            out[start:stop] = segment_values(self.specs, self.names, self._filters, self._run_play, chunk, event, gap_s)
         self._rate_gap = False
         self._last_time_s = float(time_s[-1])
         self._last_row = out[-1].tolist()
         return out
-
-    def _run_segment(self, chunk: Mapping[str, np.ndarray], event: str | None, gap_s: float | None) -> np.ndarray:
-        restart_gap_s = None if event == "power_on" else gap_s
-        done: dict[str, np.ndarray] = {}
-        for i, spec in enumerate(self.specs):
-            done[self.names[i]] = self._one(i, spec, chunk, done, event, restart_gap_s)
-        return np.column_stack([done[n] for n in self.names])
-
-    def _one(self, i: int, spec: Mapping[str, Any], chunk: Mapping[str, np.ndarray],
-             done: Mapping[str, np.ndarray], event: str | None, gap_s: float | None) -> np.ndarray:
-        kind, source = spec["kind"], spec.get("source", "temp_c")
-        x = chunk.get(source)
-        if kind in ("temp", "column") and i not in self._filters:
-            return chunk["temp_c"] if kind == "temp" else x
-        if kind in ("lag", "column", "rate"):
-            if event is not None:
-                self._filters[i].restart(float(x[0]), gap_s)
-            return self._filters[i].run(x)
-        if kind == "product":
-            rate = next((v for n, v in done.items() if self._kind_of(n) == "rate"), None)
-            if rate is None:
-                raise ValueError("a 'product' feature needs a 'rate' feature before it")
-            return chunk["temp_c"] * rate
-        if kind == "power":
-            return (x - float(spec.get("centre", 0.0))) ** float(spec["exponent"])
-        if kind == "hysteresis":
-            return x - self._run_play(i, x, float(spec["width"]), event == "power_on")
-        if kind == "time":
-            return np.zeros(len(chunk["temp_c"]))  # filled in by process, at every row's own time
-        raise ValueError(f"unknown feature kind {kind!r}")
 
     def _fill_rejected(self, out: np.ndarray, accepted: np.ndarray, carry: np.ndarray | None,
                        source: Mapping[str, np.ndarray]) -> None:
@@ -375,31 +259,12 @@ class FeatureExtractor:
         out[later] = out[previous[later]]
         before = ~accepted & (previous < 0)
         if before.any():
-            out[before] = carry if carry is not None else self._power_on_rows({k: v[before] for k, v in source.items()})
-
-    def _power_on_rows(self, source: Mapping[str, np.ndarray]) -> np.ndarray:
-        """Features of rejected rows before any accepted one: a fresh filter's output at a prior (room
-        temperature; other columns as read, 0 where not finite)."""
-        values = {k: np.nan_to_num(v, nan=0.0, posinf=0.0, neginf=0.0) for k, v in source.items()}
-        values["temp_c"] = np.full(len(values["temp_c"]), PRIOR_TEMP_C)
-        rows = np.zeros((len(values["temp_c"]), len(self.specs)))
-        for i, spec in enumerate(self.specs):
-            kind, x = spec["kind"], values.get(spec.get("source", "temp_c"))
-            if kind in ("temp", "column", "lag"):
-                rows[:, i] = values["temp_c"] if kind == "temp" else x
-            elif kind == "power":
-                rows[:, i] = (x - float(spec.get("centre", 0.0))) ** float(spec["exponent"])
-        return rows  # rate, product and hysteresis start at 0
-
-    def _kind_of(self, name: str) -> str:
-        return self.specs[self.names.index(name)]["kind"]
+            out[before] = carry if carry is not None else power_on_rows(self.specs, {k: v[before] for k, v in source.items()})
 
     def _run_play(self, i: int, x: np.ndarray, width: float, power_on: bool) -> np.ndarray:
-        """Play operator: the output follows x only when x leaves the band [p - w, p + w]."""
-        play = float(x[0]) if power_on or i not in self._play else self._play[i]
-        out = []
-        for value in (x.tolist() if isinstance(x, np.ndarray) else x):
-            play = min(max(play, value - width), value + width)
-            out.append(play)
-        self._play[i] = play
-        return np.array(out) if isinstance(x, np.ndarray) else out
+        """Play operator, its state kept per feature between calls."""
+        out, self._play[i] = play_operator(float(x[0]) if power_on or i not in self._play else self._play[i], x, width)
+        return out
+
+
+__all__ = ["FeatureExtractor", "GAP_FACTOR", "PAPER_FEATURES", "PRIOR_TEMP_C", "feature_name", "required_columns"]

@@ -1,0 +1,76 @@
+"""What each feature kind computes from accepted rows: a segment of one period (arrays) or one sample (floats).
+
+The extractor (:mod:`gyronet.model.features`) owns the state (filters, play operators) and passes it in.
+"""
+from __future__ import annotations
+
+from typing import Any, Callable, Mapping, Sequence
+
+import numpy as np
+
+
+def segment_values(specs: Sequence[Mapping[str, Any]], names: Sequence[str], filters: Mapping[int, Any], run_play: Callable,
+                   chunk: Mapping[str, np.ndarray], event: str | None, gap_s: float | None) -> np.ndarray:
+    """The features of a segment of accepted rows of one period, between gaps (arrays)."""
+    restart_gap_s = None if event == "power_on" else gap_s
+    done: dict[str, np.ndarray] = {}
+    kinds = {name: spec["kind"] for name, spec in zip(names, specs)}
+    for i, spec in enumerate(specs):
+        done[names[i]] = _one(i, spec, filters, run_play, kinds, chunk, done, event, restart_gap_s)
+    return np.column_stack([done[n] for n in names])
+
+def _one(i: int, spec: Mapping[str, Any], filters: Mapping[int, Any], run_play: Callable, kinds: Mapping[str, str],
+         chunk: Mapping[str, np.ndarray], done: Mapping[str, np.ndarray], event: str | None,
+         gap_s: float | None) -> np.ndarray:
+    kind, source = spec["kind"], spec.get("source", "temp_c")
+    x = chunk.get(source)
+    if kind in ("temp", "column") and i not in filters:
+        return chunk["temp_c"] if kind == "temp" else x
+    if kind in ("lag", "column", "rate"):
+        if event is not None:
+            filters[i].restart(float(x[0]), gap_s)
+        return filters[i].run(x)
+    if kind == "product":
+        rate = next((v for n, v in done.items() if kinds[n] == "rate"), None)
+        if rate is None:
+            raise ValueError("a 'product' feature needs a 'rate' feature before it")
+        return chunk["temp_c"] * rate
+    if kind == "power":
+        return (x - float(spec.get("centre", 0.0))) ** float(spec["exponent"])
+    if kind == "hysteresis":
+        return x - run_play(i, x, float(spec["width"]), event == "power_on")
+    if kind == "time":
+        return np.zeros(len(chunk["temp_c"]))  # filled in by process, at every row's own time
+    raise ValueError(f"unknown feature kind {kind!r}")
+
+
+def row_values(specs: Sequence[Mapping[str, Any]], filters: Mapping[int, Any], run_play: Callable,
+               values: Mapping[str, float], event: str | None, gap_s: float | None) -> list[float]:
+    """The features of one accepted sample (``segment_values`` for a segment of one, in floats)."""
+    row: list[float] = []
+    rate = None
+    for i, spec in enumerate(specs):
+        kind, x = spec["kind"], values.get(spec.get("source", "temp_c"), 0.0)
+        if kind == "temp":
+            value = values["temp_c"]
+        elif i in filters:
+            if event is not None:
+                filters[i].restart(x, gap_s)
+            value = filters[i].step(x)
+            rate = value if kind == "rate" and rate is None else rate
+        elif kind == "column":
+            value = x
+        elif kind == "product":
+            if rate is None:
+                raise ValueError("a 'product' feature needs a 'rate' feature before it")
+            value = values["temp_c"] * rate
+        elif kind == "power":
+            value = float(((np.array([x]) - float(spec.get("centre", 0.0))) ** float(spec["exponent"]))[0])
+        elif kind == "hysteresis":
+            value = x - run_play(i, [x], float(spec["width"]), event == "power_on")[0]
+        elif kind == "time":
+            value = 0.0  # filled in at the sample's own time
+        else:
+            raise ValueError(f"unknown feature kind {kind!r}")
+        row.append(value)
+    return row
