@@ -14,7 +14,7 @@ from tqdm.auto import tqdm
 
 from gyronet.errors import GyronetError
 from gyronet.training import error_bar_fit
-from gyronet.training.dataset import DriftData
+from gyronet.training.dataset import Blocks, DriftData, block_rmse  # noqa: F401 (Blocks, block_rmse: old imports)
 from gyronet.training.evaluate import evaluate, residual_report
 from gyronet.training.refit import continue_on_every_block, every_block, widen_box
 from gyronet.training.starts import fit_every_start
@@ -167,4 +167,4 @@ def _select_capacity(model: torch.nn.Module, data: DriftData) -> dict[str, float
     return capacity.as_metrics(errors, levels)
 
 
-__all__ = ["evaluate", "fit", "lr_at", "predict", "residual_report", "validation_metrics"]
+__all__ = ["Blocks", "DriftData", "block_rmse", "evaluate", "fit", "lr_at", "predict", "residual_report", "validation_metrics"]
