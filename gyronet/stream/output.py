@@ -47,7 +47,7 @@ def output_names() -> list[str]:
 
 
 def _float_texts(values: np.ndarray) -> list[bytes]:
-    """Each value as ``repr`` writes it (``%r``), through orjson where its text is the same: a chunk's column at once."""
+    """A column's values as ``repr`` writes them (``%r``), through orjson (at once) where its text is the same."""
     if orjson is None:
         return [b"%r" % value for value in values.tolist()]
     values = np.ascontiguousarray(values, dtype=np.float64)
