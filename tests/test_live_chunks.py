@@ -237,3 +237,39 @@ def test_rows_in_floats_are_the_lines_write_makes_for_them(tmp_path):
                  Compensated(np.array(rate), np.zeros((2, 3)), np.array(flags[0]), np.array(flags[1])))
     old.close(), arrays.close()
     assert (tmp_path / "old.csv").read_bytes() == (tmp_path / "arrays.csv").read_bytes()
+
+
+def test_a_chunks_floats_are_written_as_repr_writes_them():
+    """The chunk formatting (orjson where installed) gives ``repr``'s text for every float, edge values included."""
+    from gyronet.deploy.stream.output import _float_texts, _int_texts
+
+    rng = np.random.default_rng(5)
+    edges = [0.0, -0.0, 1e-4, np.nextafter(1e-4, 0), 1e15, np.nextafter(1e15, 0), 1e16, 1e-5, 5.97e-6, 5e-324,
+             1.7976931348623157e308, float("nan"), float("inf"), -float("inf"), 12.0, 0.1, 123456.789]
+    values = np.concatenate([edges, 2.0 ** np.arange(-20, 60), -(2.0 ** np.arange(-20, 60)),
+                             rng.normal(0, 1, 20000) * 10.0 ** rng.uniform(-8, 18, 20000),
+                             12.0 + 0.001 * np.arange(5000)])
+    assert _float_texts(values) == [repr(v).encode() for v in values.tolist()]
+    assert _float_texts(values[::3]) == [repr(v).encode() for v in values[::3].tolist()]  # not contiguous
+    flags = np.array([0, 1, 1, 0], dtype=np.int8)
+    assert _int_texts(flags) == [b"0", b"1", b"1", b"0"] == _int_texts(flags.astype(bool))
+
+
+def test_a_chunk_is_the_same_bytes_without_orjson(tmp_path, monkeypatch):
+    """``LiveWriter.write`` writes the same bytes through orjson and through ``repr`` alone."""
+    import gyronet.deploy.stream.output as output_module
+    from gyronet.bundle.compensator import Compensated
+    from gyronet.deploy.stream.output import LiveWriter
+
+    rng = np.random.default_rng(6)
+    n = 500
+    out = Compensated(rng.normal(0, 0.1, (n, 3)), np.zeros((n, 3)), rng.random(n) < 0.1, rng.random(n) < 0.1,
+                      np.abs(rng.normal(0, 1e-4, (n, 3))))
+    time_s, temp_c = 12.0 + 0.001 * np.arange(n), rng.normal(25.0, 3.0, n)
+    fast = LiveWriter(tmp_path / "fast.csv", tmp_path)
+    fast.write(time_s, temp_c, out)
+    monkeypatch.setattr(output_module, "orjson", None)
+    plain = LiveWriter(tmp_path / "plain.csv", tmp_path)
+    plain.write(time_s, temp_c, out)
+    fast.close(), plain.close()
+    assert (tmp_path / "fast.csv").read_bytes() == (tmp_path / "plain.csv").read_bytes()

@@ -121,6 +121,7 @@ def _per_sample_us(bundle: Path, recording: Path, n: int = 3000, warm_up: int = 
     staged, whole, floats = Compensator.load(bundle), Compensator.load(bundle), Compensator.load(bundle)
     floats.use_small_chunks()
     for compensator in (staged, whole, floats):
+        compensator.use_input_rate(FS_HZ, True, str(recording))  # as stream.py's resample=true: 1 kHz on a 10 Hz bundle
         compensator.reset()
     columns = load_recording(recording).columns
     perf = time.perf_counter

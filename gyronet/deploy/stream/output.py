@@ -5,15 +5,25 @@ Each chunk of compensated samples (one sample, or every frame that one read brou
 only, and a write that fails part-way (ENOSPC, EIO) is cut back to its last complete line before
 the error is raised. The summary JSON is written to a temporary file and renamed, so it is whole
 or absent.
+
+A flood's chunk is formatted column by column: ``repr`` of every float (the shortest text that
+reads back as the same float64) was most of the live loop's CPU (3.5 us of ~8 a sample, 8 floats
+a row). Where ``orjson`` is installed it writes a column's digits (the same shortest round trip,
+about ten times faster), and only where its text is ``repr``'s: finite values from 1e-4 to 1e15
+and zeros (a test compares them); ``repr`` writes the others (tiny sigmas, NaN, inf).
 """
 from __future__ import annotations
 
-import itertools
 import logging
 import os
 from pathlib import Path
 
 import numpy as np
+
+try:
+    import orjson
+except ImportError:  # an optional speed-up: repr alone writes the same bytes
+    orjson = None
 
 from gyronet.bundle.compensator import Compensated
 from gyronet.bundle.offline import output_columns
@@ -25,12 +35,37 @@ log = logging.getLogger(__name__)
 # one output line from floats, in output_names() order (a test checks it against write's)
 _ROW = b"%r,%r,%r,%r,%r,%d,%d,%r,%r,%r\n"
 _NO_SIGMA = (float("nan"),) * 3
+# orjson writes a float as repr does from ORJSON_LOW (below: 0.00001 for 1e-05) up to ORJSON_HIGH (above: 1e15
+# is still positional in both, 1e16 is 1e+16 for repr, 1e16 for orjson; the margin keeps clear of that)
+ORJSON_LOW, ORJSON_HIGH = 1e-4, 1e15
 
 
 def output_names() -> list[str]:
     """The columns of a compensated file, in the offline writer's order."""
     empty = Compensated(np.empty((0, 3)), np.empty((0, 3)), np.empty(0, dtype=bool))
     return list(output_columns(np.empty(0), np.empty(0), empty))
+
+
+def _float_texts(values: np.ndarray) -> list[bytes]:
+    """A column's values as ``repr`` writes them (``%r``), through orjson (at once) where its text is the same."""
+    if orjson is None:
+        return [b"%r" % value for value in values.tolist()]
+    values = np.ascontiguousarray(values, dtype=np.float64)
+    texts = orjson.dumps(values, option=orjson.OPT_SERIALIZE_NUMPY)[1:-1].split(b",")
+    magnitude = np.abs(values)
+    same = ((magnitude >= ORJSON_LOW) & (magnitude < ORJSON_HIGH)) | (values == 0.0)  # NaN is not
+    if not same.all():
+        for i in np.flatnonzero(~same).tolist():
+            texts[i] = b"%r" % float(values[i])
+    return texts
+
+
+def _int_texts(values: np.ndarray) -> list[bytes]:
+    """Each integer as ``%d`` writes it."""
+    if orjson is None:
+        return [b"%d" % value for value in values.tolist()]
+    values = np.ascontiguousarray(values, dtype=np.int64)
+    return orjson.dumps(values, option=orjson.OPT_SERIALIZE_NUMPY)[1:-1].split(b",")
 
 
 class LiveWriter:
@@ -61,10 +96,9 @@ class LiveWriter:
         n = len(columns["time_s"])
         if n == 0:
             return
-        # %r of a Python float is repr: the shortest text that reads back as the same float64
-        line = ",".join("%d" if columns[name].dtype.kind in "biu" else "%r" for name in self.names) + "\n"
-        values = zip(*(columns[name].tolist() for name in self.names))
-        self._write(((line * n) % tuple(itertools.chain.from_iterable(values))).encode("ascii"), n)
+        texts = [_int_texts(columns[name]) if columns[name].dtype.kind in "biu" else _float_texts(columns[name])
+                 for name in self.names]
+        self._write(b"\n".join(map(b",".join, zip(*texts))) + b"\n", n)
 
     def write_rows(self, rows: list[tuple]) -> None:
         """A few compensated samples in plain floats, each (time_s, 3 rates, temp_c, out_of_range, bad_input,
