@@ -124,14 +124,19 @@ def test_modules_stay_at_most_300_lines():
 def test_old_flat_import_paths_still_work_and_are_the_same_modules():
     import importlib
 
+    import hydra.utils
+
     import gyronet.training.train as train
 
-    assert importlib.import_module("gyronet.training.train") is train
+    assert importlib.import_module("gyronet.train") is train  # the names below are the old, flat ones
+    old = {name: importlib.import_module("gyronet." + name) for name in ("compensator", "stream.lpbus", "px4")}
     from gyronet.bundle.compensator import Compensator
-    from gyronet.bundle.compensator import Compensator as New
     from gyronet.deploy.stream.lpbus import LpBusParser
-    from gyronet.deploy.stream.lpbus import LpBusParser as NewDecoder
-    from gyronet.model.rbf import RBFNet  # older bundles' configs name this target
-    from gyronet.model.rbf import RBFNet as NewNet
+    from gyronet.model.px4 import Px4Cubic
+    from gyronet.model.rbf import RBFNet
 
-    assert (Compensator, LpBusParser, RBFNet) == (New, NewDecoder, NewNet)
+    assert old["compensator"].Compensator is Compensator and old["stream.lpbus"].LpBusParser is LpBusParser
+    assert old["px4"].Px4Cubic is Px4Cubic
+    # older bundles' and configs' Hydra targets
+    assert hydra.utils.get_class("gyronet.model.RBFNet") is RBFNet
+    assert hydra.utils.get_method("gyronet.runs.training_data") is importlib.import_module("gyronet.training.runs").training_data

@@ -22,7 +22,7 @@ jitter and drift of the stamps are averaged out, and where the rate changes the 
 rebuilt for the new period (same time constants in seconds) and carry their state over as across
 a short gap, unless ``on_rate_change`` refuses the change (it may raise).
 
-A feature is a small dict (a "spec", :mod:`gyronet.model.rbf.feature_specs` lists the kinds) that
+A feature is a small dict (a "spec", :mod:`gyronet.model.feature_specs` lists the kinds) that
 ``meta.json`` stores, so a bundle rebuilds exactly the extractor it was trained with.
 """
 from __future__ import annotations
@@ -33,9 +33,9 @@ from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 
-from gyronet.model.rbf.feature_specs import (GAP_FACTOR, PAPER_FEATURES, PRIOR_TEMP_C, feature_name, play_operator,
+from gyronet.model.feature_specs import (GAP_FACTOR, PAPER_FEATURES, PRIOR_TEMP_C, feature_name, play_operator,
                                          power_on_rows, required_columns)
-from gyronet.model.rbf.feature_kinds import row_values, segment_values
+from gyronet.model.feature_kinds import row_values, segment_values
 from gyronet.model.filters import Lag, RateTracker
 from gyronet.recordings.guard import MAX_TEMP_RATE_C_PER_S, TempGuard, in_sensor_range
 from gyronet.recordings.rate_watch import RateChange, RateWatch

@@ -23,8 +23,8 @@ import torch
 from torch import Tensor, nn
 from torch.nn import functional
 
-from gyronet.model.rbf.rbf_gaussians import Gaussians1D
-from gyronet.model.rbf.rbf_init import (CENTER_INITS, MIN_WIDTH, OLS_NARROW_WIDTHS_C, OLS_STEP_C, OLS_WIDTHS_C,
+from gyronet.model.rbf_gaussians import Gaussians1D
+from gyronet.model.rbf_init import (CENTER_INITS, MIN_WIDTH, OLS_NARROW_WIDTHS_C, OLS_STEP_C, OLS_WIDTHS_C,
                                     SelectionError, forward_select, kmeans_pp, raw_width)
 
 __all__ = ["CENTER_INITS", "OLS_NARROW_WIDTHS_C", "OLS_STEP_C", "OLS_WIDTHS_C", "RBFNet", "SelectionError",
