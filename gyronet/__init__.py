@@ -14,7 +14,7 @@ The package is grouped by stage; a folder may import only the folders above it i
 - ``deploy``: the live serial stream (LP-BUS, CSV), PX4/ArduPilot parameters, the C export.
 - ``analysis``: Table 1, the real-data table, the survey, rate table, the diagnosis loop.
 
-The library has no Hydra dependency. Old flat import paths (``gyronet.training.train``, ``gyronet.deploy.stream``,
+The library has no Hydra dependency. Old flat import paths (``gyronet.train``, ``gyronet.stream``,
 ...) still work and warn once (``gyronet._moved``).
 """
 from importlib.metadata import PackageNotFoundError, version
@@ -30,7 +30,7 @@ _moved.install()
 
 
 def __getattr__(name: str):
-    """``gyronet.training.train`` and the other old module attributes, imported on first use."""
+    """``gyronet.train`` and the other old module attributes, imported on first use."""
     if name in _moved.MOVED:
         import importlib
 
