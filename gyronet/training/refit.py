@@ -14,7 +14,7 @@ import torch
 from gyronet.recordings.data import AXES
 from gyronet.training.dataset import Blocks, DriftData
 
-log = logging.getLogger("gyronet.training.train")
+log = logging.getLogger(__name__)
 
 
 def continue_on_every_block(model: torch.nn.Module, data: DriftData, final: Mapping[str, float],

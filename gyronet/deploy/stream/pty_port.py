@@ -30,9 +30,10 @@ import tty
 from pathlib import Path
 from typing import Callable
 
+from gyronet.atomic import atomic_output
 from gyronet.deploy.stream.emulator import StreamPlan
 
-log = logging.getLogger("gyronet.deploy.stream.pty_sensor")
+log = logging.getLogger(__name__)
 
 _MARKER_SPEED = termios.B50
 _POLL_S = 0.01
@@ -70,7 +71,8 @@ class PtySensor:
             os.symlink(self.path, temporary)
             os.replace(temporary, self.link)
         if self.port_file is not None:
-            write_text_atomic(self.port_file, self.path + "\n")
+            with atomic_output(self.port_file) as tmp:
+                tmp.write_text(self.path + "\n")
         log.info("sensor port: %s%s", self.path, f" (link {self.link})" if self.link else "")
         return self.path
 
@@ -173,10 +175,3 @@ def _drop(sensor: PtySensor, plan: StreamPlan, reader_timeout_s: float, port_dow
     sensor.open()
     sensor.wait_for_reader(reader_timeout_s)
     sensor.write(plan.preamble)
-
-
-def write_text_atomic(path: Path, text: str) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    temporary = path.with_name(path.name + ".tmp")
-    temporary.write_text(text)
-    os.replace(temporary, path)
