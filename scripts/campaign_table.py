@@ -28,7 +28,7 @@ def main(cfg: DictConfig) -> None:
         variant = dict(cfg.variants.get(name) or {"model": name})
         spec, data_options[name] = _model_yaml(variant.pop("model"))
         spec = OmegaConf.merge(spec, variant)
-        models[name] = lambda n_inputs, spec=spec: instantiate(spec, n_inputs=n_inputs)
+        models[name] = lambda n_inputs, spec=spec, **more: instantiate(spec, n_inputs=n_inputs, **more)
     table = held_out_table(list(cfg.runs), models, float(cfg.startup_s), float(cfg.score_from_s), bool(cfg.run_offsets),
                            OmegaConf.to_container(cfg.train), int(cfg.seed), data_options)
     markdown = to_markdown(table)

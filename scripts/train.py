@@ -6,6 +6,7 @@ from hydra.core.hydra_config import HydraConfig
 from hydra.utils import instantiate
 from omegaconf import DictConfig, OmegaConf
 
+from gyronet.training.axis_lag import with_axis_lags
 from gyronet.training.pipeline import train_run
 from gyronet.figures.tb import make_writer
 
@@ -18,6 +19,8 @@ from _cli import command  # noqa: E402
 def main(cfg: DictConfig) -> float:
     data = instantiate(cfg.data)
     model = instantiate(cfg.model, n_inputs=data.n_features)
+    data, model = with_axis_lags(data, lambda n, columns: instantiate(cfg.model, n_inputs=n, axis_columns=columns),
+                                 model)
     writer = make_writer(cfg.logger.log_dir)
     hparams = {k: v for k, v in OmegaConf.to_container(cfg.model, resolve=True).items() if k != "_target_"}
     metrics = train_run(data, model, instantiate(cfg.optim), HydraConfig.get().runtime.output_dir,

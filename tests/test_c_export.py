@@ -18,6 +18,7 @@ from gyronet.bundle.compensator import Compensator
 from gyronet.recordings.data import GYRO_COLUMNS, load_recording, write_recording
 from gyronet.deploy.c_export import DRIVER, write_c
 from gyronet.errors import BundleError
+from gyronet.training.axis_lag import lagged_specs
 
 ROOT = Path(__file__).resolve().parents[1]
 CC = shutil.which("cc") or shutil.which("gcc")
@@ -39,15 +40,27 @@ def _train(out: Path, csv: Path, model_factory, features=None, kalman=None, for_
     return out / "compensator"
 
 
-def _train_members(out: Path, csv: Path) -> Path:
-    """The default's three starts, each kept (equal weights): an error bar with members in the bundle."""
+def _train_members(out: Path, csv: Path, lagged: bool = False) -> Path:
+    """The default's three starts, each kept (equal weights): an error bar with members in the bundle
+    (``lagged``: y reading its inputs 20 s behind the die, as ``gyronet.training.axis_lag`` builds it)."""
     from gyronet.training import starts
     from gyronet.model.rbf import RBFNet
 
+    features = [*PAPER, *lagged_specs(20.0, 5.0)] if lagged else None
     with pytest.MonkeyPatch.context() as patch:
         patch.setattr(starts, "stack_weights", lambda *residuals: np.full((len(residuals), 3), 1.0 / len(residuals)))
         return _train(out, csv, lambda n: RBFNet(n, 3, 6, rbf_inputs=[0], linear=True, temp_degree=3, clamp=True,
-                                                 refit_all=True, validate_init=True), for_bundle=True)
+                                                 refit_all=True, validate_init=True,
+                                                 axis_columns=_y_lagged(n) if lagged else None),
+                      features=features, for_bundle=True)
+
+
+PAPER = [{"kind": "temp"}, {"kind": "rate", "tau_s": 5.0}, {"kind": "product"}]
+
+
+def _y_lagged(n: int) -> list:
+    """Axis y reads columns 3-5 (temperature, dT/dt, T*dT/dt 20 s behind the die) in the first three slots."""
+    return [list(range(n)), [3, 4, 5, *range(3, n)], list(range(n))]
 
 
 @pytest.fixture(scope="module")
@@ -85,6 +98,10 @@ def bundles(tmp_path_factory, bundle, paper_csv, aux_csv) -> dict:
         "lsq": _train(root / "lsq", paper_csv, lambda n: LinearFeatures(n, 3)),
         "aux": _train(root / "aux", aux_csv, default, features=every_kind),
         "members": _train_members(root / "members", paper_csv),
+        "axis_lag": _train(root / "axis_lag", paper_csv, lambda n: RBFNet(
+            n, 3, 8, rbf_inputs=[0], linear=True, temp_degree=3, clamp=True, axis_columns=_y_lagged(n)),
+            features=[*PAPER, *lagged_specs(20.0, 5.0)]),
+        "members_axis_lag": _train_members(root / "members_axis_lag", paper_csv, lagged=True),
     }
 
 
@@ -156,7 +173,8 @@ def _check(c_out: np.ndarray, py) -> None:
         np.testing.assert_allclose(c_out[:, 4:7], py.drift_sigma_dps, rtol=1e-4, atol=1e-6)
 
 
-@pytest.mark.parametrize("kind", ["default", "kalman", "kalman_rate", "paper_rbf", "poly3", "lsq", "aux", "members"])
+@pytest.mark.parametrize("kind", ["default", "kalman", "kalman_rate", "paper_rbf", "poly3", "lsq", "aux", "members",
+                                  "axis_lag", "members_axis_lag"])
 def test_c_matches_compensator_on_a_hard_recording(kind, bundles, paper_csv, aux_csv, tmp_path):
     exe, summary = _build(bundles[kind], tmp_path)
     columns = _hard(_columns(aux_csv if kind == "aux" else paper_csv))

@@ -43,7 +43,10 @@ def test_train_script_writes_bundle_report_and_tensorboard(tmp_path, paper_csv, 
     assert f"held-out cycle.csv: residual / noise floor x={ratio['x']:.4g}, y={ratio['y']:.4g}" in console[0]
     assert {"model.pt", "meta.json"} <= {p.name for p in (tmp_path / "compensator").iterdir()}
     meta = json.loads((tmp_path / "compensator" / "meta.json").read_text())
-    assert meta["feature_names"] == ["temp_c", "temp_rate_c_per_s", "temp_x_rate_c2_per_s"]
+    # the paper's inputs, then those of any axis lag the screen kept (gyronet.training.axis_lag)
+    assert meta["feature_names"][:3] == ["temp_c", "temp_rate_c_per_s", "temp_x_rate_c2_per_s"]
+    assert all("_lag" in name for name in meta["feature_names"][3:])
+    assert len(meta["model"]["lag_by_axis_s"]) == 3 or len(meta["feature_names"]) == 3
     assert meta["fs_hz"] == 2.0 and meta["temp_range_c"][0] < -35 and meta["temp_range_c"][1] > 60
     assert len(meta["data_sha256"]) == 64
     assert np.isfinite(report["metrics"]["val/rmse_dps"])

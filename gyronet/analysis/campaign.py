@@ -86,6 +86,7 @@ def _train(make_model: Callable[[int], torch.nn.Module], paths: Sequence[str], r
     ``in_sample`` (PX4's script, which holds nothing out): one training run is fitted whole and
     validated on itself.
     """
+    from gyronet.training.axis_lag import with_axis_lags
     from gyronet.training.pipeline import _meta
     from gyronet.training.train import fit
 
@@ -95,6 +96,8 @@ def _train(make_model: Callable[[int], torch.nn.Module], paths: Sequence[str], r
     data = training_data(paths=list(paths), run_offsets=run_offsets, **options,
                          **({"val_path": str(paths[0])} if in_sample else {}))
     model = make_model(data.n_features)
+    # one run: each axis's thermal lag as train.py chooses it (make_model then takes axis_columns)
+    data, model = with_axis_lags(data, lambda n, columns: make_model(n, axis_columns=columns), model)
     if getattr(data, "n_runs", 1) > 1:
         fit_by_run(model, data, seed=seed, **train_cfg)
     else:

@@ -208,13 +208,13 @@ def stack_members(parts: Sequence[torch.nn.Module]) -> torch.nn.Module | None:
     if len(parts) < 2 or not all(type(p).__name__ == "RBFNet" for p in parts):
         return None
     first = parts[0]
-    for name in ("x_mean", "x_std", "z_low", "z_high", "rbf_index"):
+    for name in ("x_mean", "x_std", "z_low", "z_high", "rbf_index", "group_columns", "axis_group"):
         if not all(torch.equal(getattr(p, name), getattr(first, name)) for p in parts):
             raise ValueError(f"the members normalise differently ({name}): they must share their data")
     n_out = 3 * len(parts)
     net = RBFNet(first.n_inputs, n_out, sum(p.n_centers for p in parts), rbf_inputs=first.rbf_inputs,
                  linear=first.use_linear, temp_degree=first.temp_degree, temp_index=first.temp_index,
-                 clamp=first.clamp)
+                 clamp=first.clamp, axis_columns=first.axis_columns * len(parts))
     net.min_width = first.min_width
     for name in ("x_mean", "x_std", "z_low", "z_high"):
         getattr(net, name).copy_(getattr(first, name))
@@ -238,6 +238,7 @@ def _members_to_dict(net: torch.nn.Module) -> dict[str, Any]:
     return {"n_inputs": net.n_inputs, "n_outputs": net.n_outputs, "n_centers": net.n_centers,
             "rbf_inputs": list(net.rbf_inputs), "linear": bool(net.use_linear), "temp_degree": net.temp_degree,
             "temp_index": net.temp_index, "clamp": bool(net.clamp), "min_width": float(net.min_width),
+            **({} if net.identity_columns else {"axis_columns": net.axis_columns}),
             "state": {k: state[k].tolist() for k in _MEMBER_STATE}}
 
 
@@ -248,7 +249,8 @@ def _members_from_dict(data: Mapping[str, Any], n_features: int) -> torch.nn.Mod
         raise ValueError(f"{data['n_inputs']} inputs and {data['n_outputs']} outputs for {n_features} features")
     net = RBFNet(int(data["n_inputs"]), int(data["n_outputs"]), int(data["n_centers"]),
                  rbf_inputs=[int(i) for i in data["rbf_inputs"]], linear=bool(data["linear"]),
-                 temp_degree=int(data["temp_degree"]), temp_index=int(data["temp_index"]), clamp=bool(data["clamp"]))
+                 temp_degree=int(data["temp_degree"]), temp_index=int(data["temp_index"]), clamp=bool(data["clamp"]),
+                 axis_columns=data.get("axis_columns"))
     net.min_width = float(data["min_width"])
     state = net.state_dict()
     state.update({k: torch.tensor(data["state"][k], dtype=torch.float64).reshape(state[k].shape)

@@ -8,6 +8,8 @@ from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 
+from gyronet.model.feature_specs import feature_name
+
 
 def segment_values(specs: Sequence[Mapping[str, Any]], names: Sequence[str], filters: Mapping[int, Any], run_play: Callable,
                    chunk: Mapping[str, np.ndarray], event: str | None, gap_s: float | None) -> np.ndarray:
@@ -31,6 +33,11 @@ def _one(i: int, spec: Mapping[str, Any], filters: Mapping[int, Any], run_play: 
             filters[i].restart(float(x[0]), gap_s)
         return filters[i].run(x)
     if kind == "product":
+        if float(spec.get("lag_s", 0.0)) > 0:
+            temp_name, rate_name = lagged_inputs(spec)
+            if temp_name not in done or rate_name not in done:
+                raise ValueError(f"a lagged 'product' feature needs {temp_name} and {rate_name} before it")
+            return done[temp_name] * done[rate_name]
         rate = next((v for n, v in done.items() if kinds[n] == "rate"), None)
         if rate is None:
             raise ValueError("a 'product' feature needs a 'rate' feature before it")
@@ -44,8 +51,15 @@ def _one(i: int, spec: Mapping[str, Any], filters: Mapping[int, Any], run_play: 
     raise ValueError(f"unknown feature kind {kind!r}")
 
 
-def row_values(specs: Sequence[Mapping[str, Any]], filters: Mapping[int, Any], run_play: Callable,
-               values: Mapping[str, float], event: str | None, gap_s: float | None) -> list[float]:
+def lagged_inputs(spec: Mapping[str, Any]) -> tuple[str, str]:
+    """The names of the lagged temperature and rate a product with ``lag_s`` multiplies."""
+    lag_s = float(spec["lag_s"])
+    return feature_name({"kind": "lag", "tau_s": lag_s}), feature_name({"kind": "rate", "lag_s": lag_s})
+
+
+def row_values(specs: Sequence[Mapping[str, Any]], names: Sequence[str], filters: Mapping[int, Any],
+               run_play: Callable, values: Mapping[str, float], event: str | None,
+               gap_s: float | None) -> list[float]:
     """The features of one accepted sample (``segment_values`` for a segment of one, in floats)."""
     row: list[float] = []
     rate = None
@@ -60,6 +74,12 @@ def row_values(specs: Sequence[Mapping[str, Any]], filters: Mapping[int, Any], r
             rate = value if kind == "rate" and rate is None else rate
         elif kind == "column":
             value = x
+        elif kind == "product" and float(spec.get("lag_s", 0.0)) > 0:
+            temp_name, rate_name = lagged_inputs(spec)
+            done = dict(zip(names, row))
+            if temp_name not in done or rate_name not in done:
+                raise ValueError(f"a lagged 'product' feature needs {temp_name} and {rate_name} before it")
+            value = done[temp_name] * done[rate_name]
         elif kind == "product":
             if rate is None:
                 raise ValueError("a 'product' feature needs a 'rate' feature before it")

@@ -8,7 +8,9 @@ kind       what                                                              def
 ========== ================================================================= ====================
 temp       the measured temperature                                          ``temp_c``
 rate       dT/dt from a critically damped alpha-beta tracker, ``tau_s``      ``temp_rate_c_per_s``
+           (with ``lag_s``: then through a first-order lag of ``lag_s``)     (``..._lag<lag>s``)
 product    T * dT/dt: the paper's "T times the change of T" per second       ``temp_x_rate_c2_per_s``
+           (with ``lag_s``: the lagged temperature times the lagged rate)    (``..._lag<lag>s``)
 lag        ``source`` through a first-order lag of ``tau_s``                 ``<source>_lag<tau>s``
 column     a recording column as it is (or lagged, with ``tau_s`` > 0)       ``<source>``
 hysteresis play (backlash) operator of half-width ``width``: source - play   ``<source>_play<w>``
@@ -42,10 +44,11 @@ def feature_name(spec: Mapping[str, Any]) -> str:
     kind, source = spec["kind"], spec.get("source", "temp_c")
     if kind == "temp":
         return "temp_c"
+    lag = f"_lag{float(spec['lag_s']):g}s" if float(spec.get("lag_s", 0.0)) > 0 else ""
     if kind == "rate":
-        return "temp_rate_c_per_s" if source == "temp_c" else f"{source}_rate_per_s"
+        return ("temp_rate_c_per_s" if source == "temp_c" else f"{source}_rate_per_s") + lag
     if kind == "product":
-        return "temp_x_rate_c2_per_s"
+        return "temp_x_rate_c2_per_s" + lag
     if kind == "lag":
         return f"{source}_lag{spec['tau_s']:g}s"
     if kind == "column":

@@ -36,7 +36,7 @@ import numpy as np
 from gyronet.model.feature_specs import (GAP_FACTOR, PAPER_FEATURES, PRIOR_TEMP_C, feature_name, play_operator,
                                          power_on_rows, required_columns)
 from gyronet.model.feature_kinds import row_values, segment_values
-from gyronet.model.filters import Lag, RateTracker
+from gyronet.model.filters import Lag, LaggedRate, RateTracker
 from gyronet.recordings.guard import MAX_TEMP_RATE_C_PER_S, TempGuard, in_sensor_range
 from gyronet.recordings.rate_watch import RateChange, RateWatch
 
@@ -103,6 +103,8 @@ class FeatureExtractor:
             if spec["kind"] == "rate":
                 max_slope = MAX_TEMP_RATE_C_PER_S if spec.get("source", "temp_c") == "temp_c" else math.inf
                 self._filters[i] = RateTracker(float(spec.get("tau_s", 5.0)), self.dt_s, max_slope)
+                if float(spec.get("lag_s", 0.0)) > 0:
+                    self._filters[i] = LaggedRate(self._filters[i], Lag(float(spec["lag_s"]), self.dt_s))
             elif spec["kind"] == "lag" or (spec["kind"] == "column" and float(spec.get("tau_s", 0)) > 0):
                 self._filters[i] = Lag(float(spec["tau_s"]), self.dt_s)
 
@@ -152,13 +154,20 @@ class FeatureExtractor:
         self.rate_changes.append(change)
         self.dt_s = 1.0 / change.new_hz
         for i, old in self._filters.items():
-            if isinstance(old, Lag):
-                self._filters[i] = Lag(old.tau_s, self.dt_s)
-                self._filters[i].last_y = old.last_y
-            else:
-                self._filters[i] = RateTracker(old.tau_s, self.dt_s, old.max_slope)
-                self._filters[i].last_level, self._filters[i].last_slope = old.last_level, old.last_slope
+            self._filters[i] = self._rebuilt(old)
         self._rate_gap = self._last_time_s is not None
+
+    def _rebuilt(self, old: Any) -> Any:
+        """A filter at the new period carrying ``old``'s state over as across a short gap."""
+        if isinstance(old, LaggedRate):
+            return LaggedRate(self._rebuilt(old.tracker), self._rebuilt(old.lag))
+        if isinstance(old, Lag):
+            new = Lag(old.tau_s, self.dt_s)
+            new.last_y = old.last_y
+            return new
+        new = RateTracker(old.tau_s, self.dt_s, old.max_slope)
+        new.last_level, new.last_slope = old.last_level, old.last_slope
+        return new
 
     def _process_block(self, time_s: np.ndarray, columns: Mapping[str, np.ndarray], out: np.ndarray) -> np.ndarray:
         """``process`` on rows of one sample period."""
@@ -205,7 +214,7 @@ class FeatureExtractor:
             event = "power_on" if gap_s is None or step else \
                 ("gap" if gap_s > GAP_FACTOR * self.dt_s or self._rate_gap else None)
             self._rate_gap = False
-            row = row_values(self.specs, self._filters, self._run_play, values, event,
+            row = row_values(self.specs, self.names, self._filters, self._run_play, values, event,
                              None if event == "power_on" else gap_s)
             self._last_time_s, self._last_row = time_s, row
             row = list(row)

@@ -135,3 +135,37 @@ class RateTracker:
     def step(self, z: float) -> float:
         self.last_level, self.last_slope = self._level.step(z), self._slope.step(z)
         return self.last_slope
+
+
+class LaggedRate:
+    """dT/dt (``RateTracker``) through a first-order lag of ``lag_s``: the rate of ``lag(T, lag_s)``.
+
+    Both filters are linear, so this is also the slope of the lagged temperature: the input of an
+    axis that sees the die through a thermal path of its own (``gyronet.training.axis_lag``). On a
+    restart the lag starts (power-on) or relaxes over the gap (``Lag.restart``) at the tracker's
+    first slope after it.
+    """
+
+    def __init__(self, tracker: RateTracker, lag: Lag):
+        self.tracker, self.lag = tracker, lag
+        self.tau_s, self.lag_s = tracker.tau_s, lag.tau_s
+        self._restart: tuple[float | None] | None = None  # the gap of a restart not yet applied
+
+    def restart(self, z0: float, gap_s: float | None) -> None:
+        self.tracker.restart(z0, gap_s)
+        self._restart = (gap_s,)
+
+    def _slope_in(self, slope: float) -> None:
+        if self._restart is not None:
+            self.lag.restart(slope, self._restart[0])
+            self._restart = None
+
+    def run(self, z: np.ndarray) -> np.ndarray:
+        slope = self.tracker.run(z)
+        self._slope_in(float(slope[0]))
+        return self.lag.run(slope)
+
+    def step(self, z: float) -> float:
+        slope = self.tracker.step(z)
+        self._slope_in(slope)
+        return self.lag.step(slope)

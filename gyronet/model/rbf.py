@@ -25,7 +25,7 @@ from torch.nn import functional
 
 from gyronet.model.rbf_gaussians import Gaussians1D
 from gyronet.model.rbf_init import (CENTER_INITS, MIN_WIDTH, OLS_NARROW_WIDTHS_C, OLS_STEP_C, OLS_WIDTHS_C,
-                                    SelectionError, forward_select, kmeans_pp, raw_width)
+                                    SelectionError, forward_select, kmeans_pp, raw_width, select_centers)
 
 __all__ = ["CENTER_INITS", "OLS_NARROW_WIDTHS_C", "OLS_STEP_C", "OLS_WIDTHS_C", "RBFNet", "SelectionError",
            "forward_select"]
@@ -85,13 +85,21 @@ class RBFNet(nn.Module):
     kmeans_members
         With ``validate_init``: the k-means start is the average of this many fits from different
         k-means++ seeds (bagging), since one seeding makes the held-out error depend on the seed.
+    axis_lags_s
+        Candidate thermal lags per axis, s (``gyronet.training.axis_lag`` chooses one per axis before
+        the fit and builds the network with ``axis_columns``); None or empty: none.
+    axis_columns
+        Per output axis, the input column each input slot reads (None: the inputs as they are): an
+        axis whose temperature, dT/dt and T*dT/dt are lagged versions reads those columns in their
+        slots, with the slots' normalisation, box, centres and widths.
     """
 
     def __init__(self, n_inputs: int, n_outputs: int = 3, n_centers: int = 32, width_init: float = 1.0,
                  rbf_inputs: Optional[List[int]] = None, linear: bool = False, temp_degree: int = 0,
                  temp_index: int = 0, clamp: bool = False, select_capacity: bool = False,
                  refit_all: bool = False, center_init: str = "kmeans", validate_init: bool = False,
-                 kmeans_members: int = 1):
+                 kmeans_members: int = 1, axis_lags_s: Optional[List[float]] = None,
+                 axis_columns: Optional[List[List[int]]] = None):
         super().__init__()
         if center_init not in CENTER_INITS:
             raise ValueError(f"center_init must be one of {', '.join(CENTER_INITS)}, got {center_init!r}")
@@ -105,6 +113,17 @@ class RBFNet(nn.Module):
         if int(kmeans_members) < 1:
             raise ValueError(f"kmeans_members must be 1 or more, got {kmeans_members!r}")
         self.kmeans_members = int(kmeans_members)
+        self.axis_lags_s = [float(t) for t in (axis_lags_s or [])]
+        columns = [list(range(n_inputs))] * n_outputs if axis_columns is None else [[int(c) for c in a]
+                                                                                     for a in axis_columns]
+        if len(columns) != n_outputs or any(len(a) != n_inputs or not all(0 <= c < n_inputs for c in a)
+                                            for a in columns):
+            raise ValueError(f"axis_columns must list {n_inputs} input columns for each of {n_outputs} axes")
+        groups = list(dict.fromkeys(tuple(a) for a in columns))
+        self.axis_columns, self.n_groups = columns, len(groups)
+        self.identity_columns = groups == [tuple(range(n_inputs))]
+        self.register_buffer("group_columns", torch.tensor(groups, dtype=torch.long))
+        self.register_buffer("axis_group", torch.tensor([groups.index(tuple(a)) for a in columns], dtype=torch.long))
         # training keeps every width at or above this (normalised units); ``"ols*"`` set it to their narrowest candidate
         self.train_min_width = MIN_WIDTH
         if (center_init != "kmeans" or self.validate_init) and self.rbf_inputs != [temp_index]:
@@ -166,6 +185,18 @@ class RBFNet(nn.Module):
         widths = self.widths()
         return torch.exp((diff * diff).sum(2) * (-0.5 / (widths * widths)))
 
+    def group_input(self, x: Tensor, group: int) -> Tensor:
+        """``x`` as the axes of ``group`` see it: each slot holding the column it reads."""
+        return x if self.identity_columns else x.index_select(1, self.group_columns[group])
+
+    def per_axis(self, outputs: List[Tensor]) -> Tensor:
+        """(n, n_outputs) from every group's output: each axis from its own group's."""
+        if len(outputs) == 1:
+            return outputs[0]
+        stacked = torch.stack(outputs)
+        index = self.axis_group.view(1, 1, -1).expand(1, stacked.shape[1], stacked.shape[2])
+        return stacked.gather(0, index)[0]
+
     def on_fixed_input(self, x: Tensor):
         """``forward(x)`` as a function of the parameters alone, for a fit's inner loop on one ``x``.
 
@@ -175,14 +206,14 @@ class RBFNet(nn.Module):
         a step. The buffers must not change while it is used.
         """
         with torch.no_grad():
-            r, z, powers = self._inputs(x)
+            inputs = [self._inputs(self.group_input(x, g)) for g in range(self.n_groups)]
 
-        def gaussians() -> Tensor:
+        def gaussians(r: Tensor) -> Tensor:
             if r.shape[1] == 1:
                 return Gaussians1D.apply(r, self.centers, self.widths())
             return self._gaussians(r)
 
-        return lambda: self._output(gaussians(), z, powers)
+        return lambda: self.per_axis([self._output(gaussians(r), z, powers) for r, z, powers in inputs])
 
     def basis(self, x: Tensor) -> Tensor:
         """Every regressor the output layers combine, side by side."""
@@ -191,8 +222,11 @@ class RBFNet(nn.Module):
 
     def forward(self, x: Tensor) -> Tensor:
         """Drift (deg/s), shape (n, n_outputs), from features ``x`` of shape (n, n_inputs), float64."""
-        phi, z, powers = self.parts(x)
-        return self._output(phi, z, powers)
+        outputs: List[Tensor] = []
+        for g in range(self.n_groups):
+            phi, z, powers = self.parts(self.group_input(x, g))
+            outputs.append(self._output(phi, z, powers))
+        return self.per_axis(outputs)
 
     def _output(self, phi: Tensor, z: Tensor, powers: Tensor) -> Tensor:
         """The output layers on the parts, in deg/s."""
@@ -210,49 +244,13 @@ class RBFNet(nn.Module):
         self.z_high.copy_(z.max(0).values)
         r = z[:, self.rbf_index]
         if self.center_init != "kmeans":
-            self._select_centers(x, y)
+            select_centers(self, x, y)
         else:
             self.centers.copy_(kmeans_pp(r, self.n_centers, generator))
             nearest = torch.cdist(self.centers, self.centers).fill_diagonal_(float("inf")).min(1).values
             width = (self.width_init * nearest.clamp_min(1e-3).mean()).clamp_min(2 * MIN_WIDTH)
             self.raw_width.fill_(float(raw_width(width)))
         self.refit_head(x, y, ridge)
-
-    @torch.no_grad()
-    def _select_centers(self, x: Tensor, y: Tensor) -> None:
-        """Centres and widths by forward selection on the residual of the linear and polynomial terms."""
-        t = self.temp_index
-        scale_c = float(self.x_std[t])
-        step = OLS_STEP_C / scale_c
-        low, high = float(self.z_low[t]), float(self.z_high[t])
-        grid = torch.arange(low, high + 0.5 * step, step, dtype=x.dtype)
-        temp = ((x[:, t] - self.x_mean[t]) / self.x_std[t]).clamp(low, high)
-        # a Gaussian centred in a gap of the training temperatures (a held-out span) is fitted by its
-        # tails alone: candidates only where a training temperature lies within a grid step
-        seen = torch.sort(temp).values
-        after = torch.bucketize(grid, seen).clamp(1, len(seen) - 1)
-        grid = grid[torch.minimum(grid - seen[after - 1], seen[after] - grid).abs() <= step]
-        widths_c = OLS_NARROW_WIDTHS_C if self.center_init == "ols_narrow" else OLS_WIDTHS_C
-        widths = torch.tensor(widths_c, dtype=x.dtype) * self.width_init / scale_c
-        centre_of = grid.repeat(len(widths))
-        width_of = widths.repeat_interleave(len(grid))
-        _, lin, powers = self.parts(x)  # the other terms' regressors; the Gaussians' values are unused
-        # phi_jk = exp(-(T_j - c_k)^2 / (2 w_k^2)), every candidate k
-        candidates = torch.exp(-0.5 * ((temp[:, None] - centre_of[None]) / width_of[None]).pow(2))
-        base = [torch.ones(len(x), 1, dtype=x.dtype)]
-        if self.use_linear:
-            base.append(lin)
-        if self.temp_degree >= 2:
-            base.append(powers)
-        base = torch.cat(base, dim=1)
-        q, _ = torch.linalg.qr(base)
-        # each axis's misfit of the other terms counts alike, however small a share of its swing
-        misfit = y - q @ (q.T @ y)
-        chosen = forward_select(candidates, base, y / misfit.norm(dim=0).clamp_min(1e-300), self.n_centers)
-        self.centers.copy_(centre_of[chosen].unsqueeze(1))
-        self.raw_width.copy_(raw_width(width_of[chosen].clamp_min(2 * MIN_WIDTH)))
-        # Adam would narrow a Gaussian onto the noise again
-        self.train_min_width = float(widths.min())
 
     @torch.no_grad()
     def keep_widths_(self) -> None:
@@ -269,6 +267,13 @@ class RBFNet(nn.Module):
         1 + the linear terms, 2 + the temperature powers, 3 + the Gaussians (everything). Only the
         rows of ``axes`` (all when None) are written; the parts above ``level`` are zero there.
         """
+        rows = list(range(self.n_outputs)) if axes is None else [int(a) for a in axes]
+        for g in range(self.n_groups):  # the axes that read the same columns share one design
+            group_rows = [a for a in rows if int(self.axis_group[a]) == g]
+            if group_rows:
+                self._refit_rows(self.group_input(x, g), y, ridge, level, group_rows)
+
+    def _refit_rows(self, x: Tensor, y: Tensor, ridge: float, level: int, rows: List[int]) -> None:
         basis = self.basis(x)
         n_phi, n_lin = self.n_centers, self.n_inputs
         n_pow = basis.shape[1] - n_phi - n_lin
@@ -281,7 +286,6 @@ class RBFNet(nn.Module):
         coef = torch.linalg.solve(gram, design.T @ target)
         full = torch.zeros(n_phi + n_lin + n_pow, self.n_outputs, dtype=x.dtype)
         full[cols] = coef[:-1]
-        rows = list(range(self.n_outputs)) if axes is None else [int(a) for a in axes]
         for a in rows:
             self.head.weight[a] = full[:n_phi, a]
             self.head.bias[a] = coef[-1, a]

@@ -96,3 +96,40 @@ def kmeans_pp(points: Tensor, k: int, generator: torch.Generator, iterations: in
             if len(members):
                 centers[j] = members.mean(0)
     return centers
+
+
+@torch.no_grad()
+def select_centers(net, x: Tensor, y: Tensor) -> None:
+    """``net``'s (an ``RBFNet``) centres and widths by forward selection on the residual of its linear and polynomial terms."""
+    t = net.temp_index
+    scale_c = float(net.x_std[t])
+    step = OLS_STEP_C / scale_c
+    low, high = float(net.z_low[t]), float(net.z_high[t])
+    grid = torch.arange(low, high + 0.5 * step, step, dtype=x.dtype)
+    temp = ((x[:, t] - net.x_mean[t]) / net.x_std[t]).clamp(low, high)
+    # a Gaussian centred in a gap of the training temperatures (a held-out span) is fitted by its
+    # tails alone: candidates only where a training temperature lies within a grid step
+    seen = torch.sort(temp).values
+    after = torch.bucketize(grid, seen).clamp(1, len(seen) - 1)
+    grid = grid[torch.minimum(grid - seen[after - 1], seen[after] - grid).abs() <= step]
+    widths_c = OLS_NARROW_WIDTHS_C if net.center_init == "ols_narrow" else OLS_WIDTHS_C
+    widths = torch.tensor(widths_c, dtype=x.dtype) * net.width_init / scale_c
+    centre_of = grid.repeat(len(widths))
+    width_of = widths.repeat_interleave(len(grid))
+    _, lin, powers = net.parts(x)  # the other terms' regressors; the Gaussians' values are unused
+    # phi_jk = exp(-(T_j - c_k)^2 / (2 w_k^2)), every candidate k
+    candidates = torch.exp(-0.5 * ((temp[:, None] - centre_of[None]) / width_of[None]).pow(2))
+    base = [torch.ones(len(x), 1, dtype=x.dtype)]
+    if net.use_linear:
+        base.append(lin)
+    if net.temp_degree >= 2:
+        base.append(powers)
+    base = torch.cat(base, dim=1)
+    q, _ = torch.linalg.qr(base)
+    # each axis's misfit of the other terms counts alike, however small a share of its swing
+    misfit = y - q @ (q.T @ y)
+    chosen = forward_select(candidates, base, y / misfit.norm(dim=0).clamp_min(1e-300), net.n_centers)
+    net.centers.copy_(centre_of[chosen].unsqueeze(1))
+    net.raw_width.copy_(raw_width(width_of[chosen].clamp_min(2 * MIN_WIDTH)))
+    # Adam would narrow a Gaussian onto the noise again
+    net.train_min_width = float(widths.min())

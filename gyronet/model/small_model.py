@@ -64,7 +64,7 @@ def _rbf(module: torch.nn.Module, state: dict[str, np.ndarray]) -> RowModel:
     units_1 = [(center[0], w_sq) for center, w_sq in units] if single else []
     exp = math.exp
 
-    def forward(x: list) -> list:
+    def forward_all(x: list) -> list:
         z = [(v - m) / s for v, m, s in zip(x, mean, std)]
         zc = [min(max(v, lo), hi) for v, lo, hi in zip(z, low, high)] if clamp else z
         if clamp:
@@ -77,6 +77,16 @@ def _rbf(module: torch.nn.Module, state: dict[str, np.ndarray]) -> RowModel:
             phi = [exp(sum([(a - c) ** 2 for a, c in zip(r, center)]) * -0.5 / w_sq) for center, w_sq in units]
         basis = phi + z + [zc[temp] ** k for k in exponents]
         return [(sum(map(mul, basis, weights)) + b) * s + m for weights, b, s, m in outputs]
+
+    if "group_columns" not in state or module.identity_columns:
+        return forward_all
+    # per-axis inputs (RBFNet.axis_columns): each group's slots read their columns, each axis its group's output
+    groups = state["group_columns"].astype(int).tolist()
+    axis_group = state["axis_group"].astype(int).tolist()
+
+    def forward(x: list) -> list:
+        outputs = [forward_all([x[c] for c in columns]) for columns in groups]
+        return [outputs[g][a] for a, g in enumerate(axis_group)]
 
     return forward
 

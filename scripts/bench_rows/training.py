@@ -32,6 +32,7 @@ def _fit_in_process(csv: Path, overrides: list[str]) -> dict[str, Any]:
     from omegaconf import OmegaConf
 
     from gyronet.training import dataset
+    from gyronet.training.axis_lag import with_axis_lags
     from gyronet.training.train import fit
 
     for cached in ("_load_by_key", "_features_by_key"):  # a cold load, whatever ran before in this process
@@ -39,8 +40,10 @@ def _fit_in_process(csv: Path, overrides: list[str]) -> dict[str, Any]:
     cfg = _compose([f"data.path={csv}", *overrides])
     start = time.perf_counter()
     data = instantiate(cfg.data)
-    data_s = time.perf_counter() - start
     model = instantiate(cfg.model, n_inputs=data.n_features)
+    data, model = with_axis_lags(data, lambda n, columns: instantiate(cfg.model, n_inputs=n, axis_columns=columns),
+                                 model)
+    data_s = time.perf_counter() - start  # the lag screen's features included
     train_cfg = {**OmegaConf.to_container(cfg.train), "progress": False}
     start = time.perf_counter()
     metrics = fit(model, data, instantiate(cfg.optim), seed=cfg.seed, **train_cfg)

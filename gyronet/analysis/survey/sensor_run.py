@@ -116,6 +116,7 @@ def simulate_history(folder: Path, name: str, sensor_seed: int, history: History
 
 def train_method(train_csv: Path, method: Mapping[str, Any], out_dir: Path) -> Path:
     """Train one method on ``train_csv`` as ``train.py`` would (``gyronet.training.pipeline.train_run``); its bundle."""
+    from gyronet.training.axis_lag import with_axis_lags
     from gyronet.training.pipeline import train_run
     from gyronet.training.runs import training_data
 
@@ -124,6 +125,8 @@ def train_method(train_csv: Path, method: Mapping[str, Any], out_dir: Path) -> P
     data_options.pop("_convert_", None)
     data = training_data(**data_options)
     model = build(method["model"], n_inputs=data.n_features)
+    data, model = with_axis_lags(data, lambda n, columns: build(method["model"], n_inputs=n, axis_columns=columns),
+                                 model)
     train_cfg = {**dict(method.get("train") or {}), "progress": False}
     train_run(data, model, build(method["optim"]), out_dir, train_cfg, seed=int(method.get("seed", 0)))
     return out_dir / "compensator"

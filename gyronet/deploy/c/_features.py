@@ -12,6 +12,8 @@ from typing import Any, Mapping, NamedTuple, Sequence
 
 from gyronet.deploy.c import c_float
 from gyronet.errors import BundleError
+from gyronet.model.feature_kinds import lagged_inputs
+from gyronet.model.feature_specs import feature_name
 from gyronet.recordings.guard import MAX_TEMP_RATE_C_PER_S
 
 # an unbounded slope for a rate of another column than the temperature
@@ -47,6 +49,7 @@ def feature_code(specs: Sequence[Mapping[str, Any]], fs_hz: float, aux: Sequence
     power_on.append("    float w[1 + GYRONET_N_AUX];\n    w[0] = PRIOR_TEMP_C;")
     for k in range(len(aux)):
         power_on.append(f"    w[{k + 1}] = v[{k + 1}] - v[{k + 1}] == 0.0f ? v[{k + 1}] : 0.0f;")
+    index_of = {feature_name(spec): i for i, spec in enumerate(specs)}
     for i, spec in enumerate(specs):
         kind, column = spec["kind"], spec.get("source", "temp_c")
         k = 1 + list(aux).index(column) if column in aux else 0  # where v holds the source column
@@ -68,6 +71,20 @@ def feature_code(specs: Sequence[Mapping[str, Any]], fs_hz: float, aux: Sequence
             power_on.append(f"    x[{i}] = 0.0f;")
             n_filter += 3
             first_rate = i if first_rate is None else first_rate
+            if float(spec.get("lag_s", 0.0)) > 0:  # then through a lag (gyronet.model.filters.LaggedRate)
+                lag_s = float(spec["lag_s"])
+                constants.append(f"static const lag_coef RATE_LAG_{i} = {{{c_float(-math.expm1(-dt_s / lag_s))}, "
+                                 f"{c_float(lag_s)}}};")
+                state = f"&s->filter[{n_filter}], &RATE_LAG_{i}, x[{i}]"
+                accepted.append(f"    x[{i}] = event != EVENT_NONE ? lag_restart({state}, event, gap_s)\n"
+                                f"                            : lag_step({state});")
+                n_filter += 2
+        elif kind == "product" and float(spec.get("lag_s", 0.0)) > 0:
+            temp_name, rate_name = lagged_inputs(spec)
+            if temp_name not in index_of or rate_name not in index_of:
+                raise BundleError(f"{where}: a lagged 'product' feature needs {temp_name} and {rate_name} before it")
+            accepted.append(f"    x[{i}] = x[{index_of[temp_name]}] * x[{index_of[rate_name]}];")
+            power_on.append(f"    x[{i}] = 0.0f;")
         elif kind == "product":
             if first_rate is None:
                 raise BundleError(f"{where}: a 'product' feature needs a 'rate' feature before it")

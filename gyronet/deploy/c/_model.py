@@ -53,9 +53,19 @@ def _rbf(module: Any) -> tuple[dict[str, Any], Callable[[np.ndarray], np.ndarray
          "t": int(module.temp_index), "index": [int(i) for i in module.rbf_index.tolist()],
          "centers": _array(module, "centers"), "neg_half_inv_w2": -0.5 / widths ** 2, "head": head,
          "bias": _array(module, "head.bias") * y_std + y_mean,
-         "linear": linear if np.any(linear) else None, "poly": poly if np.any(poly) else None}
+         "linear": linear if np.any(linear) else None, "poly": poly if np.any(poly) else None,
+         "groups": None}
+    if hasattr(module, "group_columns") and not bool(module.identity_columns):  # RBFNet.axis_columns
+        p["groups"] = _array(module, "group_columns").astype(int).tolist()
+        p["axis_group"] = _array(module, "axis_group").astype(int).tolist()
 
     def reference(x: np.ndarray) -> np.ndarray:
+        if p["groups"] is None:
+            return one_group(x)
+        outputs = [one_group(x[:, columns]) for columns in p["groups"]]
+        return np.column_stack([outputs[g][:, a] for a, g in enumerate(p["axis_group"])])
+
+    def one_group(x: np.ndarray) -> np.ndarray:
         z = (x - p["mean"]) * p["inv_std"]
         zc = np.clip(z, p["low"], p["high"]) if p["clamp"] else z
         z[:, p["t"]] = zc[:, p["t"]]
@@ -75,6 +85,25 @@ def _rbf(module: Any) -> tuple[dict[str, Any], Callable[[np.ndarray], np.ndarray
 def _rbf_c(p: dict[str, Any], prefix: str = "M_", n_out: int = 3, out: str = "drift") -> tuple[str, str]:
     """Constants and body of ``p``'s forward into ``out[0..n_out)``, its constants named ``prefix*``
     (the error bar's members network is one more RBFNet, ``gyronet.deploy.c._error_bar``)."""
+    if p["groups"] is None:
+        return _rbf_group_c(p, prefix, n_out, out)
+    # per-axis inputs (RBFNet.axis_columns): the network once per group on its columns, each axis its group's
+    n_in, n_g, m = len(p["mean"]), len(p["groups"]), prefix
+    constants, body = _rbf_group_c(p, prefix, n_out, "y_g")
+    constants += (f"\nstatic const unsigned char {m}GROUP_COLUMNS[{n_g}][{n_in}] = "
+                  f"{{{', '.join('{' + ', '.join(map(str, g)) + '}' for g in p['groups'])}}};"
+                  f"\nstatic const unsigned char {m}AXIS_GROUP[{n_out}] = {{{', '.join(map(str, p['axis_group']))}}};")
+    body = body.replace("(x[i] - ", "(x_g[i] - ")
+    wrapped = ["    {", "        int g, i_g, a_g;", f"        for (g = 0; g < {n_g}; ++g) {{",
+               f"            float x_g[{n_in}], y_g[{n_out}];", f"            for (i_g = 0; i_g < {n_in}; ++i_g) {{",
+               f"                x_g[i_g] = x[{m}GROUP_COLUMNS[g][i_g]];", "            }", "            {",
+               *["        " + line for line in body.split("\n")], "            }",
+               f"            for (a_g = 0; a_g < {n_out}; ++a_g) {{",
+               f"                if ({m}AXIS_GROUP[a_g] == g) {out}[a_g] = y_g[a_g];", "            }", "        }", "    }"]
+    return constants, "\n".join(wrapped)
+
+
+def _rbf_group_c(p: dict[str, Any], prefix: str, n_out: int, out: str) -> tuple[str, str]:
     n_in, (n_c, n_r) = len(p["mean"]), p["centers"].shape
     m = prefix
     constants = [f"static const float {m}MEAN[{n_in}] = {c_array(p['mean'])};",

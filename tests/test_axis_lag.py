@@ -1,0 +1,122 @@
+"""A thermal lag per axis (gyronet.training.axis_lag): lagged features, the network reading them per axis, the screen."""
+import numpy as np
+import pytest
+import torch
+
+from gyronet.model.features import PAPER_FEATURES, FeatureExtractor
+from gyronet.model.rbf import RBFNet
+from gyronet.model.small_model import row_model
+from gyronet.sim.sensor import first_order_lag
+from gyronet.training.axis_lag import choose_lags, lagged_specs, screen_errors, with_axis_lags
+
+SPECS = [*PAPER_FEATURES, *lagged_specs(20.0, 5.0)]
+
+
+def _temperature(n: int = 30000, fs_hz: float = 10.0):
+    """Quantised ramps and holds, as a die sensor reports them."""
+    time_s = np.arange(n) / fs_hz
+    temp_c = 25.0 + 8.0 * np.sin(time_s / 400.0) + np.where(time_s > 1500.0, 3.0, 0.0) * np.tanh((time_s - 1500) / 60)
+    return time_s, np.round(temp_c * 16.0) / 16.0
+
+
+def test_lagged_rate_is_the_rate_of_the_lagged_temperature():
+    time_s, temp_c = _temperature()
+    got = FeatureExtractor(SPECS, 10.0).process({"time_s": time_s, "temp_c": temp_c})
+    lagged = first_order_lag(temp_c, 10.0, 20.0)
+    want = FeatureExtractor(PAPER_FEATURES, 10.0).process({"time_s": time_s, "temp_c": lagged})
+    settled = time_s > 200.0  # both start settled, at different states
+    np.testing.assert_allclose(got[settled, 3], lagged[settled], atol=1e-9)
+    np.testing.assert_allclose(got[settled, 4], want[settled, 1], atol=1e-9)
+    np.testing.assert_allclose(got[settled, 5], lagged[settled] * want[settled, 1], atol=1e-7)
+
+
+def test_lagged_features_are_the_same_in_one_block_in_chunks_and_row_by_row_across_gaps_and_a_rate_change():
+    time_s, temp_c = _temperature(12000)
+    keep = np.ones(len(time_s), dtype=bool)
+    keep[3000:3004] = keep[5000:5400] = False  # bridged, and restarted
+    time_s, temp_c = time_s[keep], temp_c[keep]
+    time_s[time_s > 900.0] = 900.0 + (time_s[time_s > 900.0] - 900.0) * 0.5  # the rate doubles
+    columns = {"time_s": time_s, "temp_c": temp_c}
+    whole = FeatureExtractor(SPECS, 10.0).process(columns)
+    extractor = FeatureExtractor(SPECS, 10.0)
+    chunks = np.concatenate([extractor.process({k: v[i:i + 997] for k, v in columns.items()})
+                             for i in range(0, len(time_s), 997)])
+    extractor.reset()
+    rows = np.array([extractor.process_row(t, {"temp_c": v})[0] for t, v in zip(time_s, temp_c)])
+    assert np.isfinite(whole).all() and extractor.rate_changes
+    np.testing.assert_allclose(chunks, whole, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(rows, whole, rtol=0, atol=1e-12)
+
+
+def _grouped(n_inputs: int = 6):
+    """A default-like network whose y reads columns 3-5 in its first three slots."""
+    rng = np.random.default_rng(0)
+    x = torch.from_numpy(np.column_stack([rng.uniform(-20, 50, 800), rng.normal(0, 0.02, (800, n_inputs - 1))]))
+    x[:, 3] = x[:, 0] + rng.normal(0, 0.5, 800)
+    y = torch.stack([0.01 * x[:, 0], torch.tanh(x[:, 3] / 5.0), x[:, 1]], 1)
+    columns = [list(range(n_inputs)), [3, 4, 5, 3, 4, 5], list(range(n_inputs))]
+    net = RBFNet(n_inputs, 3, 6, rbf_inputs=[0], linear=True, temp_degree=3, clamp=True, axis_columns=columns)
+    net.init_from_data(x, y, torch.Generator().manual_seed(0))
+    return net, x, y, columns
+
+
+def test_each_axis_is_the_network_on_its_own_columns():
+    net, x, y, columns = _grouped()
+    plain = RBFNet(6, 3, 6, rbf_inputs=[0], linear=True, temp_degree=3, clamp=True)
+    plain.load_state_dict({k: v for k, v in net.state_dict().items() if k not in ("group_columns", "axis_group")},
+                          strict=False)
+    with torch.no_grad():
+        out = net(x)
+        for a, cols in enumerate(columns):
+            torch.testing.assert_close(out[:, a], plain(x[:, cols])[:, a], rtol=0, atol=0)
+        torch.testing.assert_close(net.on_fixed_input(x)(), out, rtol=0, atol=0)
+        scripted = torch.jit.script(net.eval())
+        torch.testing.assert_close(torch.jit.freeze(scripted)(x), out, rtol=0, atol=0)
+    one = row_model(scripted)
+    got = np.array([one(row) for row in x.numpy().tolist()])
+    np.testing.assert_allclose(got, out.numpy(), rtol=1e-12, atol=1e-12)
+    # the head's least squares is each group's own: y's row is what a refit on y's columns gives
+    net.refit_head(x, y)
+    plain.refit_head(x[:, columns[1]], y)
+    with torch.no_grad():
+        torch.testing.assert_close(net(x)[:, 1], plain(x[:, columns[1]])[:, 1], rtol=1e-9, atol=1e-12)
+
+
+def test_axis_columns_are_checked():
+    with pytest.raises(ValueError, match="axis_columns"):
+        RBFNet(3, 3, 4, axis_columns=[[0, 1, 2], [0, 1]])
+
+
+@pytest.fixture(scope="module")
+def lagged_sensor_csv(tmp_path_factory):
+    """A simulated sensor whose y axis sees the die 25 s late, x and z at once (no cross-axis coupling)."""
+    from gyronet.sim.core import simulate, write_simulation
+
+    sim = simulate(profile="cycle", fs_hz=2.0, seed=1, sensor_seed=3,
+                   sensor={"axis_lag_s": [0.0, 25.0, 0.0]})
+    path = tmp_path_factory.mktemp("axis_lag") / "cycle.csv"
+    write_simulation(sim, path)
+    return path
+
+
+def test_the_screen_finds_the_lagged_axis_and_leaves_the_others(lagged_sensor_csv):
+    from gyronet.training.dataset import DriftData
+
+    data = DriftData(str(lagged_sensor_csv))
+    lags = [5.0, 10.0, 20.0, 30.0, 60.0]
+    errors = screen_errors(data, lags)
+    chosen = choose_lags(errors, lags)
+    assert chosen[0] == 0.0 and chosen[2] == 0.0, (chosen, errors)
+    assert chosen[1] in (20.0, 30.0), (chosen, errors)
+    # 10 s means hold the noise too: the lag's share of them is a few per cent
+    assert errors[0, 1] > 1.04 * errors[1:, 1].min() and errors[0, [0, 2]].min() > 0
+
+    made = []
+    model = RBFNet(data.n_features, 3, 4, rbf_inputs=[0], linear=True, temp_degree=3, clamp=True, axis_lags_s=lags)
+    lagged_data, lagged_model = with_axis_lags(data, lambda n, cols: made.append(cols) or RBFNet(
+        n, 3, 4, rbf_inputs=[0], linear=True, temp_degree=3, clamp=True, axis_columns=cols), model)
+    assert [s.get("lag_s", s.get("tau_s")) for s in lagged_data.features[3:]] == [chosen[1]] * 3
+    assert made == [[[0, 1, 2, 0, 1, 2], [3, 4, 5, 3, 4, 5], [0, 1, 2, 0, 1, 2]]]
+    assert lagged_model.lag_by_axis_s == chosen
+    plain = RBFNet(data.n_features, 3, 4)  # without candidates nothing changes
+    assert with_axis_lags(data, None, plain) == (data, plain)
