@@ -120,3 +120,20 @@ def test_the_screen_finds_the_lagged_axis_and_leaves_the_others(lagged_sensor_cs
     assert lagged_model.lag_by_axis_s == chosen
     plain = RBFNet(data.n_features, 3, 4)  # without candidates nothing changes
     assert with_axis_lags(data, None, plain) == (data, plain)
+
+
+def test_several_runs_are_screened_together_with_a_constant_per_run(lagged_sensor_csv, tmp_path):
+    from gyronet.sim.core import simulate, write_simulation
+    from gyronet.training.runs import RunsData, training_data
+
+    second = tmp_path / "random.csv"
+    write_simulation(simulate(profile="random", fs_hz=2.0, seed=2, sensor_seed=3, duration_s=6 * 3600.0,
+                              sensor={"axis_lag_s": [0.0, 25.0, 0.0]}), second)
+    data = training_data(paths=[str(lagged_sensor_csv), str(second)], run_offsets=True)
+    lags = [5.0, 10.0, 20.0, 30.0, 60.0]
+    chosen = choose_lags(screen_errors(data, lags), lags)
+    assert chosen[0] == 0.0 and chosen[2] == 0.0 and chosen[1] in (20.0, 30.0), chosen
+    model = RBFNet(data.n_features, 3, 4, rbf_inputs=[0], linear=True, temp_degree=3, clamp=True, axis_lags_s=lags)
+    lagged, _ = with_axis_lags(data, lambda n, cols: RBFNet(n, 3, 4, axis_columns=cols), model)
+    assert isinstance(lagged, RunsData) and lagged.n_runs == 2 and lagged.run_offsets
+    assert lagged.n_features == 6 and lagged.train.x.shape[1] == 6 and len(lagged.train) == len(data.train)

@@ -11,8 +11,8 @@ residual's 60 s means (the contract's residual). A lag
 is kept only where it lowers that held-out error by ``LAG_GAIN`` or more; the network is then
 built with the lagged columns in those axes' slots (``RBFNet.axis_columns``).
 
-Only for one recording; a multi-run campaign keeps the inputs as they are (its runs' held-out
-error includes each run's constant, which the screen does not model).
+Several runs (``data.paths``) are screened together, with a constant per run beside the form (each
+run's turn-on bias), their 2 min chunks held out in turn.
 """
 from __future__ import annotations
 
@@ -24,7 +24,9 @@ import numpy as np
 import torch
 
 from gyronet.recordings.data import AXES
-from gyronet.training.dataset import DriftData, block_rmse
+from gyronet.training.dataset import DriftData, residual_block_means
+from gyronet.training.run_data import load_runs, stack_runs
+from gyronet.training.runs import RunsData
 
 log = logging.getLogger(__name__)
 
@@ -52,31 +54,55 @@ def paper_slots(specs: Sequence[dict]) -> list[int] | None:
     return None if None in slots else slots
 
 
-def screen_errors(data: DriftData, lags_s: Sequence[float]) -> np.ndarray:
+def screen_errors(data: Any, lags_s: Sequence[float]) -> np.ndarray:
     """The screen's cross-validated error per candidate (none first, then ``lags_s``) and axis, (1 + len, 3), deg/s."""
     slots = paper_slots(data.features)
     rate_tau_s = float(data.features[slots[1]].get("tau_s", 5.0))
-    extra = [spec for lag_s in lags_s for spec in lagged_specs(lag_s, rate_tau_s)]
-    wide = dataclasses.replace(data, features=[*data.features, *extra])
-    time_s = np.concatenate([wide.train.time_s, wide.val.time_s])
-    order = np.argsort(time_s, kind="stable")
-    time_s = time_s[order]
-    x, y = np.concatenate([wide.train.x, wide.val.x])[order], np.concatenate([wide.train.y, wide.val.y])[order]
-    fold = (np.floor((time_s - time_s[0]) / CHUNK_S) % N_FOLDS).astype(int)
+    wide = with_features(data, [*data.features, *[s for lag in lags_s for s in lagged_specs(lag, rate_tau_s)]])
+    time_s, x, y, run = _every_block(wide)
+    chunk = np.zeros(len(time_s), dtype=np.int64)
+    for r in np.unique(run):  # 2 min chunks of each run, numbered on across the runs
+        mine = run == r
+        chunk[mine] = chunk.max() + 1 + np.floor((time_s[mine] - time_s[mine].min()) / CHUNK_S).astype(np.int64)
+    fold = chunk % N_FOLDS
+    runs = (run[:, None] == np.unique(run)[None]).astype(np.float64)  # a constant per run (each run's turn-on bias)
     n = len(data.features)
     columns = [slots] + [[n + 3 * k, n + 3 * k + 1, n + 3 * k + 2] for k in range(len(lags_s))]
     low, high = data.temp_range_c
     centres = np.arange(low, high + 0.5 * GRID_STEP_C, GRID_STEP_C)
     errors = np.empty((len(columns), len(AXES)))
     for k, cols in enumerate(columns):
-        basis, residual = _basis(x[:, cols], centres, low, high), np.empty_like(y)
+        basis, residual = np.column_stack([runs, _basis(x[:, cols], centres, low, high)]), np.empty_like(y)
         for f in range(N_FOLDS):
             held = fold == f
             gram = basis[~held].T @ basis[~held]
             ridge = RIDGE * np.trace(gram) / len(gram) * np.eye(len(gram))
             residual[held] = basis[held] @ np.linalg.solve(gram + ridge, basis[~held].T @ y[~held]) - y[held]
-        errors[k] = block_rmse(time_s, residual, BLOCK_S)  # over 60 s, as scored: a 10 s mean is mostly noise
+        # over 60 s, as scored (a 10 s mean is mostly noise), each run's blocks apart
+        means = np.concatenate([residual_block_means(time_s[run == r], residual[run == r], BLOCK_S)
+                                for r in np.unique(run)])
+        errors[k] = np.sqrt(np.mean(means ** 2, axis=0))
     return errors
+
+
+def _every_block(data: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Time, features, targets and run of every 10 s block of the training data, in time order per run."""
+    if isinstance(data, RunsData):
+        blocks = stack_runs(data.runs, data.block_s)
+        return blocks.time_s, blocks.x, blocks.y, blocks.run
+    time_s = np.concatenate([data.train.time_s, data.val.time_s])
+    order = np.argsort(time_s, kind="stable")
+    return (time_s[order], np.concatenate([data.train.x, data.val.x])[order],
+            np.concatenate([data.train.y, data.val.y])[order], np.zeros(len(time_s), dtype=np.int64))
+
+
+def with_features(data: Any, features: list) -> Any:
+    """The same training data (one recording or several runs, the same split) with other features."""
+    if isinstance(data, RunsData):
+        runs = load_runs(data.paths, features, data.static_rate_dps)
+        return RunsData(runs, features, data.block_s, data.static_rate_dps, data.held_out, data.run_offsets,
+                        data.val_startup_s)
+    return dataclasses.replace(data, features=features)
 
 
 def _basis(x: np.ndarray, centres: np.ndarray, low: float, high: float) -> np.ndarray:
@@ -105,9 +131,7 @@ def with_axis_lags(data: Any, make_model: Callable[..., torch.nn.Module], model:
     """
     lags_s = list(getattr(model, "axis_lags_s", None) or [])
     slots = paper_slots(getattr(data, "features", []))
-    if not lags_s or not isinstance(data, DriftData) or slots is None:
-        if lags_s and not isinstance(data, DriftData):
-            log.info("axis lags: chosen on one recording only; the runs' inputs stay as they are")
+    if not lags_s or not isinstance(data, (DriftData, RunsData)) or slots is None:
         return data, model
     errors = screen_errors(data, lags_s)
     chosen = choose_lags(errors, lags_s)
@@ -132,7 +156,7 @@ def with_axis_lags(data: Any, make_model: Callable[..., torch.nn.Module], model:
         columns.append(axis)
     model = make_model(len(features), columns)
     model.lag_by_axis_s = chosen
-    return dataclasses.replace(data, features=features), model
+    return with_features(data, features), model
 
 
 __all__ = ["LAG_GAIN", "choose_lags", "lagged_specs", "paper_slots", "screen_errors", "with_axis_lags"]
