@@ -166,7 +166,7 @@ TRAIN_EXTRA = {
     "typo_top": (["trian.max_epochs=3"], "did you mean train.max_epochs?"),
     "typo_plus_in_train": (["+train.max_epoch=3", "data.path=F.csv"], "did you mean train.max_epochs?"),
     "unknown_top": (["foo=1"], "unknown setting foo; the settings at the top level are data,"),
-    "no_such_option": (["model=nope"], "no option 'nope' for model; the options are default, lsq, poly3, px4, px4_onboard, rbf"),
+    "no_such_option": (["model=nope"], "no option 'nope' for model; the options are default, default_nolag, lsq, poly3, px4, px4_onboard, rbf"),
     "close_option": (["model=rbff"], "did you mean model=rbf?"),
     "hydra_key_typo": (["hydra.run.dri=x"], "did you mean hydra.run.dir?"),
     "bad_interpolation": (["data.path=F.csv", "data.block_s=${nope}"], "nope"),

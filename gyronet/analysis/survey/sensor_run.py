@@ -195,11 +195,14 @@ def run_sensor(sensor_seed: int, spec: SurveySpec, folder: str | Path, reuse: bo
     difference = turn_on_bias(load_truth(check_csv).columns) - turn_on_bias(load_truth(train_csv).columns)
     sensor = json.loads(load_truth(check_csv).meta["sensor_model"])
     methods = {}
-    for name, method in spec.methods.items():
-        method_start = time.perf_counter()
-        bundle = train_method(train_csv, method, folder / _folder_name(name))
-        methods[name] = {**score_bundle(bundle, check_csv, spec.startup_s, difference),
-                         "seconds": time.perf_counter() - method_start}
+    try:
+        for name, method in spec.methods.items():
+            method_start = time.perf_counter()
+            bundle = train_method(train_csv, method, folder / _folder_name(name))
+            methods[name] = {**score_bundle(bundle, check_csv, spec.startup_s, difference),
+                             "seconds": time.perf_counter() - method_start}
+    finally:
+        _forget_records()
     result = {"sensor_seed": int(sensor_seed), "fingerprint": fingerprint, "methods": methods,
               "turn_on_difference_dps": difference.tolist(), **describe_sensor(sensor), "sensor": sensor,
               "seconds": time.perf_counter() - start}
@@ -209,6 +212,18 @@ def run_sensor(sensor_seed: int, spec: SurveySpec, folder: str | Path, reuse: bo
     with atomic_output(result_path) as tmp:
         tmp.write_text(json.dumps(result, indent=1) + "\n")
     return result
+
+
+def _forget_records() -> None:
+    """Drop this sensor's recordings and features from the per-process caches: a long-lived worker
+    otherwise holds the last ones of many sensors (a 100-sensor run was killed for memory twice)."""
+    import gc
+
+    from gyronet.training import dataset
+
+    dataset._load_by_key.cache_clear()
+    dataset._features_by_key.cache_clear()
+    gc.collect()
 
 
 def _folder_name(method: str) -> str:
