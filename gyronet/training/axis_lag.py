@@ -7,9 +7,9 @@ bias curve by ``tau * dT/dt``. Before the fit each axis's lag is chosen from the
 ``axis_lags_s`` (and none) by a closed-form screen: a least-squares fit of the default's form (a
 cubic and Gaussians on a fixed grid in the lagged temperature, linear terms in its rate and their
 product) on the 10 s blocks, cross-validated by 2 min chunks, scored by the RMS of the held-out
-residual's 60 s means (the contract's residual). A lag
-is kept only where it lowers that held-out error by ``LAG_GAIN`` or more; the network is then
-built with the lagged columns in those axes' slots (``RBFNet.axis_columns``).
+residual's 60 s means (the contract's residual). A lag is kept only where it lowers that
+held-out error by ``LAG_GAIN`` or more; the network is then built with the lagged columns in
+those axes' slots (``RBFNet.axis_columns``).
 
 Several runs (``data.paths``) are screened together, with a constant per run beside the form (each
 run's turn-on bias), their 2 min chunks held out in turn.
@@ -127,7 +127,7 @@ def with_axis_lags(data: Any, make_model: Callable[..., torch.nn.Module], model:
     """``data`` and ``model`` as the fit needs them: with each axis's lagged inputs where a lag pays.
 
     ``make_model(n_inputs, axis_columns)`` builds the network again for more inputs; nothing changes
-    for a model without ``axis_lags_s``, or training data other than one recording.
+    for a model without ``axis_lags_s``, features without the paper's three, or where no lag pays.
     """
     lags_s = list(getattr(model, "axis_lags_s", None) or [])
     slots = paper_slots(getattr(data, "features", []))
