@@ -72,12 +72,9 @@ def feature_code(specs: Sequence[Mapping[str, Any]], fs_hz: float, aux: Sequence
             n_filter += 3
             first_rate = i if first_rate is None else first_rate
             if float(spec.get("lag_s", 0.0)) > 0:  # then through a lag (gyronet.model.filters.LaggedRate)
-                lag_s = float(spec["lag_s"])
-                constants.append(f"static const lag_coef RATE_LAG_{i} = {{{c_float(-math.expm1(-dt_s / lag_s))}, "
-                                 f"{c_float(lag_s)}}};")
-                state = f"&s->filter[{n_filter}], &RATE_LAG_{i}, x[{i}]"
-                accepted.append(f"    x[{i}] = event != EVENT_NONE ? lag_restart({state}, event, gap_s)\n"
-                                f"                            : lag_step({state});")
+                constant, statement = _lag_c(f"RATE_LAG_{i}", float(spec["lag_s"]), dt_s, n_filter, f"x[{i}]", i)
+                constants.append(constant)
+                accepted.append(statement)
                 n_filter += 2
         elif kind == "product" and float(spec.get("lag_s", 0.0)) > 0:
             temp_name, rate_name = lagged_inputs(spec)
@@ -91,12 +88,9 @@ def feature_code(specs: Sequence[Mapping[str, Any]], fs_hz: float, aux: Sequence
             accepted.append(f"    x[{i}] = v[0] * x[{first_rate}];")
             power_on.append(f"    x[{i}] = 0.0f;")
         elif kind == "lag" or (kind == "column" and float(spec.get("tau_s", 0.0)) > 0):
-            tau_s = float(spec["tau_s"])
-            gain = c_float(-math.expm1(-dt_s / tau_s))  # 1 - decay
-            constants.append(f"static const lag_coef LAG_{i} = {{{gain}, {c_float(tau_s)}}};")
-            state = f"&s->filter[{n_filter}], &LAG_{i}, v[{k}]"
-            accepted.append(f"    x[{i}] = event != EVENT_NONE ? lag_restart({state}, event, gap_s)\n"
-                            f"                            : lag_step({state});")
+            constant, statement = _lag_c(f"LAG_{i}", float(spec["tau_s"]), dt_s, n_filter, f"v[{k}]", i)
+            constants.append(constant)
+            accepted.append(statement)
             power_on.append(f"    x[{i}] = w[{k}];")
             n_filter += 2
         elif kind == "column":
@@ -131,3 +125,12 @@ def feature_code(specs: Sequence[Mapping[str, Any]], fs_hz: float, aux: Sequence
     return FeatureCode("\n".join(constants), unused + "\n".join(accepted), "\n".join(power_on),
                        "    (void)s;\n    (void)time_s;\n    (void)x;\n" + "\n".join(timed),
                        max(n_filter, 1), max(n_play, 1))
+
+
+def _lag_c(name: str, tau_s: float, dt_s: float, n_filter: int, source: str, i: int) -> tuple[str, str]:
+    """A first-order lag's constant ``name`` and the statement that runs ``source`` through it into ``x[i]``."""
+    gain = c_float(-math.expm1(-dt_s / tau_s))  # 1 - decay
+    state = f"&s->filter[{n_filter}], &{name}, {source}"
+    return (f"static const lag_coef {name} = {{{gain}, {c_float(tau_s)}}};",
+            f"    x[{i}] = event != EVENT_NONE ? lag_restart({state}, event, gap_s)\n"
+            f"                            : lag_step({state});")
