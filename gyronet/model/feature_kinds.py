@@ -34,10 +34,7 @@ def _one(i: int, spec: Mapping[str, Any], filters: Mapping[int, Any], run_play: 
         return filters[i].run(x)
     if kind == "product":
         if float(spec.get("lag_s", 0.0)) > 0:
-            temp_name, rate_name = lagged_inputs(spec)
-            if temp_name not in done or rate_name not in done:
-                raise ValueError(f"a lagged 'product' feature needs {temp_name} and {rate_name} before it")
-            return done[temp_name] * done[rate_name]
+            return _lagged_product(spec, done)
         rate = next((v for n, v in done.items() if kinds[n] == "rate"), None)
         if rate is None:
             raise ValueError("a 'product' feature needs a 'rate' feature before it")
@@ -55,6 +52,14 @@ def lagged_inputs(spec: Mapping[str, Any]) -> tuple[str, str]:
     """The names of the lagged temperature and rate a product with ``lag_s`` multiplies."""
     lag_s = float(spec["lag_s"])
     return feature_name({"kind": "lag", "tau_s": lag_s}), feature_name({"kind": "rate", "lag_s": lag_s})
+
+
+def _lagged_product(spec: Mapping[str, Any], done: Mapping[str, Any]) -> Any:
+    """A product with ``lag_s``: the lagged temperature times the lagged rate, both computed before it."""
+    temp_name, rate_name = lagged_inputs(spec)
+    if temp_name not in done or rate_name not in done:
+        raise ValueError(f"a lagged 'product' feature needs {temp_name} and {rate_name} before it")
+    return done[temp_name] * done[rate_name]
 
 
 def row_values(specs: Sequence[Mapping[str, Any]], names: Sequence[str], filters: Mapping[int, Any],
@@ -75,11 +80,7 @@ def row_values(specs: Sequence[Mapping[str, Any]], names: Sequence[str], filters
         elif kind == "column":
             value = x
         elif kind == "product" and float(spec.get("lag_s", 0.0)) > 0:
-            temp_name, rate_name = lagged_inputs(spec)
-            done = dict(zip(names, row))
-            if temp_name not in done or rate_name not in done:
-                raise ValueError(f"a lagged 'product' feature needs {temp_name} and {rate_name} before it")
-            value = done[temp_name] * done[rate_name]
+            value = _lagged_product(spec, dict(zip(names, row)))
         elif kind == "product":
             if rate is None:
                 raise ValueError("a 'product' feature needs a 'rate' feature before it")
