@@ -19,15 +19,8 @@ import numpy as np
 
 from gyronet.errors import GyronetError, RecordingError
 from gyronet.model.features import PAPER_FEATURES, FeatureExtractor, required_columns
-from gyronet.recordings.data import (
-    AXES,
-    GYRO_COLUMNS,
-    Recording,
-    block_means,
-    load_recording,
-    split_by_time,
-    time_blocks,
-)
+from gyronet.recordings.data import (AXES, GYRO_COLUMNS, Recording, block_means, load_recording, split_by_time,
+                                     time_blocks)
 
 log = logging.getLogger(__name__)
 
@@ -94,6 +87,12 @@ def _features_by_key(key: tuple[str, int, int], specs_json: str, fs_hz: float) -
     features.setflags(write=False)  # shared between the runs of one process
     accepted.setflags(write=False)
     return features, accepted
+
+
+def clear_caches() -> None:
+    """Forget every recording and feature set this process has loaded (a cold load next time)."""
+    _load_by_key.cache_clear()
+    _features_by_key.cache_clear()
 
 
 def check_physical(recording: Recording) -> None:
@@ -292,5 +291,5 @@ def residual_block_means(time_s: np.ndarray, residual: np.ndarray, block_s: floa
     return np.concatenate([p for p in pieces if len(p)]) if pieces else np.empty((0, residual.shape[1]))
 
 
-__all__ = ["Blocks", "DriftData", "TrainingData", "block_rmse", "check_features_present", "check_physical", "featurize",
-           "residual_block_means", "static_rate_dps", "to_blocks", "time_blocks", "trained_range_c"]
+__all__ = ["Blocks", "DriftData", "TrainingData", "block_rmse", "check_features_present", "check_physical", "clear_caches",
+           "featurize", "residual_block_means", "static_rate_dps", "to_blocks", "time_blocks", "trained_range_c"]

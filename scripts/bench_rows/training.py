@@ -35,8 +35,7 @@ def _fit_in_process(csv: Path, overrides: list[str]) -> dict[str, Any]:
     from gyronet.training.axis_lag import with_axis_lags
     from gyronet.training.train import fit
 
-    for cached in ("_load_by_key", "_features_by_key"):  # a cold load, whatever ran before in this process
-        getattr(getattr(dataset, cached, None), "cache_clear", lambda: None)()
+    dataset.clear_caches()  # a cold load, whatever ran before in this process
     cfg = _compose([f"data.path={csv}", *overrides])
     start = time.perf_counter()
     data = instantiate(cfg.data)

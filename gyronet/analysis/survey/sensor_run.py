@@ -222,8 +222,7 @@ def _forget_records() -> None:
 
     from gyronet.training import dataset
 
-    dataset._load_by_key.cache_clear()
-    dataset._features_by_key.cache_clear()
+    dataset.clear_caches()
     gc.collect()
     try:  # glibc keeps freed heap pages: give them back (elsewhere there is nothing to do)
         ctypes.CDLL("libc.so.6").malloc_trim(0)
