@@ -18,6 +18,7 @@ from gyronet.bundle.compensator import Compensator
 from gyronet.recordings.data import GYRO_COLUMNS, load_recording, write_recording
 from gyronet.deploy.c_export import DRIVER, write_c
 from gyronet.errors import BundleError
+from gyronet.model.features import PAPER_FEATURES
 from gyronet.training.axis_lag import lagged_specs
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -46,16 +47,13 @@ def _train_members(out: Path, csv: Path, lagged: bool = False) -> Path:
     from gyronet.training import starts
     from gyronet.model.rbf import RBFNet
 
-    features = [*PAPER, *lagged_specs(20.0, 5.0)] if lagged else None
+    features = [*PAPER_FEATURES, *lagged_specs(20.0, 5.0)] if lagged else None
     with pytest.MonkeyPatch.context() as patch:
         patch.setattr(starts, "stack_weights", lambda *residuals: np.full((len(residuals), 3), 1.0 / len(residuals)))
         return _train(out, csv, lambda n: RBFNet(n, 3, 6, rbf_inputs=[0], linear=True, temp_degree=3, clamp=True,
                                                  refit_all=True, validate_init=True,
                                                  axis_columns=_y_lagged(n) if lagged else None),
                       features=features, for_bundle=True)
-
-
-PAPER = [{"kind": "temp"}, {"kind": "rate", "tau_s": 5.0}, {"kind": "product"}]
 
 
 def _y_lagged(n: int) -> list:
@@ -100,7 +98,7 @@ def bundles(tmp_path_factory, bundle, paper_csv, aux_csv) -> dict:
         "members": _train_members(root / "members", paper_csv),
         "axis_lag": _train(root / "axis_lag", paper_csv, lambda n: RBFNet(
             n, 3, 8, rbf_inputs=[0], linear=True, temp_degree=3, clamp=True, axis_columns=_y_lagged(n)),
-            features=[*PAPER, *lagged_specs(20.0, 5.0)]),
+            features=[*PAPER_FEATURES, *lagged_specs(20.0, 5.0)]),
         "members_axis_lag": _train_members(root / "members_axis_lag", paper_csv, lagged=True),
     }
 

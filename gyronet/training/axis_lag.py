@@ -44,6 +44,12 @@ def lagged_specs(lag_s: float, rate_tau_s: float) -> list[dict[str, Any]]:
             {"kind": "product", "lag_s": float(lag_s)}]
 
 
+def _with_lags(features: Sequence[dict], slots: Sequence[int], lags_s: Sequence[float]) -> list[dict]:
+    """``features`` and after them each lag's three (``lagged_specs``, dT/dt at the features' own time constant)."""
+    rate_tau_s = float(features[slots[1]].get("tau_s", 5.0))
+    return [*features, *[spec for lag_s in lags_s for spec in lagged_specs(lag_s, rate_tau_s)]]
+
+
 def paper_slots(specs: Sequence[dict]) -> list[int] | None:
     """Where the unlagged temperature, rate and product are in ``specs``, or None without all three."""
     def first(kind: str) -> int | None:
@@ -57,8 +63,7 @@ def paper_slots(specs: Sequence[dict]) -> list[int] | None:
 def screen_errors(data: Any, lags_s: Sequence[float]) -> np.ndarray:
     """The screen's cross-validated error per candidate (none first, then ``lags_s``) and axis, (1 + len, 3), deg/s."""
     slots = paper_slots(data.features)
-    rate_tau_s = float(data.features[slots[1]].get("tau_s", 5.0))
-    wide = with_features(data, [*data.features, *[s for lag in lags_s for s in lagged_specs(lag, rate_tau_s)]])
+    wide = with_features(data, _with_lags(data.features, slots, lags_s))
     time_s, x, y, run = _every_block(wide)
     chunk = np.zeros(len(time_s), dtype=np.int64)
     for r in np.unique(run):  # 2 min chunks of each run, numbered on across the runs
@@ -141,9 +146,8 @@ def with_axis_lags(data: Any, make_model: Callable[..., torch.nn.Module], model:
     distinct = sorted({lag for lag in chosen if lag})
     if not distinct:
         return data, model
-    rate_tau_s = float(data.features[slots[1]].get("tau_s", 5.0))
     n = len(data.features)
-    features = [*data.features, *[spec for lag_s in distinct for spec in lagged_specs(lag_s, rate_tau_s)]]
+    features = _with_lags(data.features, slots, distinct)
     columns = []
     for lag in chosen:
         # the axis's own temperature, rate and product in the paper's slots and in every lag's: no axis
