@@ -48,6 +48,10 @@ class RBFNet(nn.Module):
         Initial width: with ``center_init="kmeans"`` a multiple of the mean distance from a centre
         to its nearest neighbour; with ``"ols"`` a factor on the candidate widths ``OLS_WIDTHS_C``
         (``OLS_NARROW_WIDTHS_C`` with ``"ols_narrow"``).
+    two_way_width_init
+        With ``validate_init``: the ``width_init`` the starts use instead when the record heats and
+        cools through at least half its temperatures (``gyronet.training.two_way``); None: always
+        ``width_init``.
     rbf_inputs
         Indices of the inputs that feed the Gaussians; all when None.
     linear
@@ -99,12 +103,13 @@ class RBFNet(nn.Module):
                  temp_index: int = 0, clamp: bool = False, select_capacity: bool = False,
                  refit_all: bool = False, center_init: str = "kmeans", validate_init: bool = False,
                  kmeans_members: int = 1, axis_lags_s: Optional[List[float]] = None,
-                 axis_columns: Optional[List[List[int]]] = None):
+                 axis_columns: Optional[List[List[int]]] = None, two_way_width_init: Optional[float] = None):
         super().__init__()
         if center_init not in CENTER_INITS:
             raise ValueError(f"center_init must be one of {', '.join(CENTER_INITS)}, got {center_init!r}")
         self.n_inputs, self.n_outputs, self.n_centers = n_inputs, n_outputs, n_centers
         self.width_init = float(width_init)
+        self.two_way_width_init = None if two_way_width_init is None else float(two_way_width_init)
         self.min_width = MIN_WIDTH
         self.rbf_inputs: List[int] = list(range(n_inputs)) if rbf_inputs is None else [int(i) for i in rbf_inputs]
         self.use_linear, self.temp_degree, self.temp_index, self.clamp = linear, int(temp_degree), temp_index, clamp

@@ -148,7 +148,9 @@ def fit_every_start(model: nn.Module, data: DriftData, optim: Callable | None, o
     spread of the held-out error over every fit tried (``spread_figures``).
     """
     from gyronet.model.rbf import CENTER_INITS, SelectionError
+    from gyronet.training import two_way
 
+    two_way.apply(model, data)
     trials, tried = [], []
     for init in CENTER_INITS:
         try:
