@@ -122,6 +122,21 @@ def test_the_screen_finds_the_lagged_axis_and_leaves_the_others(lagged_sensor_cs
     assert with_axis_lags(data, None, plain) == (data, plain)
 
 
+def test_the_rate_only_control_tells_a_thermal_lag_from_a_smoother_rate(lagged_sensor_csv):
+    """y's drawn lag shifts its bias curve: lagging the temperature too must beat lagging dT/dt alone."""
+    from gyronet.training.dataset import DriftData
+
+    data = DriftData(str(lagged_sensor_csv))
+    lags = [5.0, 10.0, 20.0, 30.0, 60.0]
+    errors = screen_errors(data, lags, rate_only=True)
+    assert errors.shape == (1 + 2 * len(lags), 3)
+    assert np.array_equal(errors[:1 + len(lags)], screen_errors(data, lags))  # the choice's rows are the same
+    best = 1 + int(np.argmin(errors[1:1 + len(lags), 1]))
+    full_gain, rate_only_gain = errors[0, 1] - errors[best, 1], errors[0, 1] - errors[best + len(lags), 1]
+    # at 2 Hz a smoother dT/dt earns part of the gain too (the real tag's 60 s is all of that kind)
+    assert full_gain > 1.3 * rate_only_gain > 0, errors[:, 1]
+
+
 def test_several_runs_are_screened_together_with_a_constant_per_run(lagged_sensor_csv, tmp_path):
     from gyronet.sim.core import simulate, write_simulation
     from gyronet.training.runs import RunsData, training_data

@@ -60,8 +60,13 @@ def paper_slots(specs: Sequence[dict]) -> list[int] | None:
     return None if None in slots else slots
 
 
-def screen_errors(data: Any, lags_s: Sequence[float]) -> np.ndarray:
-    """The screen's cross-validated error per candidate (none first, then ``lags_s``) and axis, (1 + len, 3), deg/s."""
+def screen_errors(data: Any, lags_s: Sequence[float], rate_only: bool = False) -> np.ndarray:
+    """The screen's cross-validated error per candidate (none first, then ``lags_s``) and axis, (1 + len, 3), deg/s.
+
+    With ``rate_only``, ``len(lags_s)`` more rows: each lag's dT/dt and T*dT/dt with the temperature
+    unlagged, the control that tells a thermal lag (the bias curve shifted on every ramp) from a
+    dT/dt that only wants more smoothing or delay.
+    """
     slots = paper_slots(data.features)
     wide = with_features(data, _with_lags(data.features, slots, lags_s))
     time_s, x, y, run = _every_block(wide)
@@ -73,6 +78,8 @@ def screen_errors(data: Any, lags_s: Sequence[float]) -> np.ndarray:
     runs = (run[:, None] == np.unique(run)[None]).astype(np.float64)  # a constant per run (each run's turn-on bias)
     n = len(data.features)
     columns = [slots] + [[n + 3 * k, n + 3 * k + 1, n + 3 * k + 2] for k in range(len(lags_s))]
+    if rate_only:
+        columns += [[slots[0], n + 3 * k + 1, n + 3 * k + 2] for k in range(len(lags_s))]
     low, high = data.temp_range_c
     centres = np.arange(low, high + 0.5 * GRID_STEP_C, GRID_STEP_C)
     errors = np.empty((len(columns), len(AXES)))
@@ -138,10 +145,15 @@ def with_axis_lags(data: Any, make_model: Callable[..., torch.nn.Module], model:
     slots = paper_slots(getattr(data, "features", []))
     if not lags_s or not isinstance(data, (DriftData, RunsData)) or slots is None:
         return data, model
-    errors = screen_errors(data, lags_s)
-    chosen = choose_lags(errors, lags_s)
-    gains = ", ".join(f"{axis} {lag:g} s ({100 * (1 - errors[1 + lags_s.index(lag), a] / errors[0, a]):.0f} % "
-                      "lower held-out error)" if lag else f"{axis} none" for a, (axis, lag) in enumerate(zip(AXES, chosen)))
+    errors = screen_errors(data, lags_s, rate_only=True)
+    chosen = choose_lags(errors[:1 + len(lags_s)], lags_s)
+
+    def gain(row: int, a: int) -> float:
+        return 100 * (1 - errors[row, a] / errors[0, a])
+
+    gains = ", ".join(f"{axis} {lag:g} s ({gain(1 + lags_s.index(lag), a):.1f} % lower held-out error; "
+                      f"{gain(1 + len(lags_s) + lags_s.index(lag), a):.1f} % with only dT/dt lagged)"
+                      if lag else f"{axis} none" for a, (axis, lag) in enumerate(zip(AXES, chosen)))
     log.info("axis lags (screened: none, %s s): %s", ", ".join(f"{t:g}" for t in lags_s), gains)
     distinct = sorted({lag for lag in chosen if lag})
     if not distinct:
