@@ -5,7 +5,7 @@ narrow Gaussian on temperature can stand in for the dT/dt terms or fit the noise
 the record: Table 1's sensor gets worse with narrower starts (x 1.09x -> 1.14x). Where the record
 passes the same temperatures heating and cooling, the static curve is pinned from both sides and
 the narrow Gaussians a sharp knee needs can be identified: on a chamber cycle the survey's ten
-worst sensors went from 1.41x to 1.14x (mean worst axis, as deployed). The held-out blocks of one
+worst sensors went from 1.41x to 1.13x (mean worst axis, as deployed). The held-out blocks of one
 record do not tell the two cases apart (their errors differ by less than their noise), so the
 record's thermal history decides.
 """
