@@ -15,6 +15,8 @@ import logging
 
 import numpy as np
 
+from gyronet.recordings.data import time_blocks
+
 log = logging.getLogger(__name__)
 
 SEGMENT_S = 60.0             # temperature averaged over this before its rate is taken
@@ -29,8 +31,7 @@ def two_way_share(time_s: np.ndarray, temp_c: np.ndarray) -> float:
     ok = np.isfinite(time_s) & np.isfinite(temp_c)
     if ok.sum() < 2:
         return 0.0
-    segment = np.floor((time_s[ok] - time_s[ok].min()) / SEGMENT_S).astype(np.int64)
-    ids, inverse = np.unique(segment, return_inverse=True)
+    ids, inverse = np.unique(time_blocks(time_s[ok], SEGMENT_S), return_inverse=True)
     mean_c = np.bincount(inverse, temp_c[ok]) / np.bincount(inverse)
     adjacent = np.diff(ids) == 1  # no rate across a gap (a held-out span, lost data)
     rate = np.diff(mean_c)[adjacent] * 60.0 / SEGMENT_S
