@@ -7,7 +7,7 @@ from gyronet.model.features import PAPER_FEATURES, FeatureExtractor
 from gyronet.model.rbf import RBFNet
 from gyronet.model.small_model import row_model
 from gyronet.sim.sensor import first_order_lag
-from gyronet.training.axis_lag import choose_lags, lagged_specs, screen_errors, with_axis_lags
+from gyronet.training.axis_lag import choose_inputs, choose_lags, lagged_specs, screen_errors, with_axis_lags
 
 SPECS = [*PAPER_FEATURES, *lagged_specs(20.0, 5.0)]
 
@@ -152,3 +152,32 @@ def test_several_runs_are_screened_together_with_a_constant_per_run(lagged_senso
     lagged, _ = with_axis_lags(data, lambda n, cols: RBFNet(n, 3, 4, axis_columns=cols), model)
     assert isinstance(lagged, RunsData) and lagged.n_runs == 2 and lagged.run_offsets
     assert lagged.n_features == 6 and lagged.train.x.shape[1] == 6 and len(lagged.train) == len(data.train)
+
+
+def test_an_axis_gets_only_its_rate_lagged_where_the_temperature_lag_earns_nothing_more():
+    lags = [10.0, 60.0]
+    # rows: none, full 10 s, full 60 s, rate-only 10 s, rate-only 60 s; columns x, y, z
+    errors = np.array([[1.00, 1.00, 1.00],
+                       [0.97, 0.90, 0.99],
+                       [0.95, 0.80, 0.995],
+                       [0.99, 0.95, 0.985],
+                       [0.93, 0.85, 0.99]])
+    assert choose_inputs(errors, lags) == [(60.0, True), (60.0, False), (0.0, False)]
+    assert choose_lags(errors[:3], lags) == [60.0, 60.0, 0.0]  # the temperature-lag-only choice as before
+
+
+def test_a_rate_only_axis_reads_the_reported_temperature_and_the_lagged_rate(lagged_sensor_csv, monkeypatch):
+    from gyronet.training import axis_lag
+    from gyronet.training.dataset import DriftData
+
+    data = DriftData(str(lagged_sensor_csv))
+    lags = [20.0, 30.0]
+    monkeypatch.setattr(axis_lag, "choose_inputs", lambda errors, lags_s: [(30.0, True), (20.0, False), (0.0, False)])
+    made = []
+    model = RBFNet(data.n_features, 3, 4, rbf_inputs=[0], linear=True, axis_lags_s=lags)
+    lagged_data, lagged_model = with_axis_lags(data, lambda n, cols: made.append(cols) or RBFNet(
+        n, 3, 4, rbf_inputs=[0], linear=True, axis_columns=cols), model)
+    # features: paper 0-2, 20 s lag 3-5, 30 s lag 6-8; x keeps temperature 0 with the 30 s rate and product
+    assert made == [[[0, 7, 8, 0, 7, 8, 0, 7, 8], [3, 4, 5, 3, 4, 5, 3, 4, 5], [0, 1, 2, 0, 1, 2, 0, 1, 2]]]
+    assert lagged_model.lag_by_axis_s == [30.0, 20.0, 0.0] and lagged_model.rate_lag_only_by_axis == [True, False, False]
+    assert lagged_data.n_features == 9

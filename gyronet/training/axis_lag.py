@@ -9,7 +9,9 @@ cubic and Gaussians on a fixed grid in the lagged temperature, linear terms in i
 product) on the 10 s blocks, cross-validated by 2 min chunks, scored by the RMS of the held-out
 residual's 60 s means (the contract's residual). A lag is kept only where it lowers that
 held-out error by ``LAG_GAIN`` or more; the network is then built with the lagged columns in
-those axes' slots (``RBFNet.axis_columns``).
+those axes' slots (``RBFNet.axis_columns``). Each lag is also screened with only dT/dt and T*dT/dt
+lagged and the temperature as reported: where that does as well, the axis wants a smoother, later
+rate rather than a thermal lag, and gets only those columns lagged.
 
 Several runs (``data.paths``) are screened together, with a constant per run beside the form (each
 run's turn-on bias), their 2 min chunks held out in turn.
@@ -135,6 +137,24 @@ def choose_lags(errors: np.ndarray, lags_s: Sequence[float], gain: float = LAG_G
     return chosen
 
 
+def choose_inputs(errors: np.ndarray, lags_s: Sequence[float], gain: float = LAG_GAIN) -> list[tuple[float, bool]]:
+    """Per axis of :func:`screen_errors` with ``rate_only``: (lag, only dT/dt lagged), (0, False) for none.
+
+    The lowest held-out error of every row wins if it beats none by ``gain``: where lagging the
+    temperature too earns nothing more, only the dT/dt and T*dT/dt columns are lagged (a smoother,
+    later rate), and the bias curve stays on the temperature as reported.
+    """
+    n = len(lags_s)
+    chosen = []
+    for a in range(errors.shape[1]):
+        best = int(np.argmin(errors[:1 + 2 * n, a]))
+        if not best or errors[best, a] > (1 - gain) * errors[0, a]:
+            chosen.append((0.0, False))
+        else:
+            chosen.append((float(lags_s[(best - 1) % n]), best > n))
+    return chosen
+
+
 def with_axis_lags(data: Any, make_model: Callable[..., torch.nn.Module], model: torch.nn.Module) -> tuple[Any, Any]:
     """``data`` and ``model`` as the fit needs them: with each axis's lagged inputs where a lag pays.
 
@@ -146,14 +166,20 @@ def with_axis_lags(data: Any, make_model: Callable[..., torch.nn.Module], model:
     if not lags_s or not isinstance(data, (DriftData, RunsData)) or slots is None:
         return data, model
     errors = screen_errors(data, lags_s, rate_only=True)
-    chosen = choose_lags(errors[:1 + len(lags_s)], lags_s)
+    inputs = choose_inputs(errors, lags_s)
+    chosen = [lag for lag, _ in inputs]
 
     def gain(row: int, a: int) -> float:
         return 100 * (1 - errors[row, a] / errors[0, a])
 
-    gains = ", ".join(f"{axis} {lag:g} s ({gain(1 + lags_s.index(lag), a):.1f} % lower held-out error; "
-                      f"{gain(1 + len(lags_s) + lags_s.index(lag), a):.1f} % with only dT/dt lagged)"
-                      if lag else f"{axis} none" for a, (axis, lag) in enumerate(zip(AXES, chosen)))
+    def said(a: int, lag: float, rate_only: bool) -> str:
+        row = 1 + lags_s.index(lag)
+        full, rate = f"{gain(row, a):.1f} %", f"{gain(row + len(lags_s), a):.1f} %"
+        if rate_only:
+            return f"{AXES[a]} dT/dt {lag:g} s ({rate} lower held-out error; {full} with the temperature lagged too)"
+        return f"{AXES[a]} {lag:g} s ({full} lower held-out error; {rate} with only dT/dt lagged)"
+
+    gains = ", ".join(said(a, lag, rate_only) if lag else f"{AXES[a]} none" for a, (lag, rate_only) in enumerate(inputs))
     log.info("axis lags (screened: none, %s s): %s", ", ".join(f"{t:g}" for t in lags_s), gains)
     distinct = sorted({lag for lag in chosen if lag})
     if not distinct:
@@ -161,18 +187,18 @@ def with_axis_lags(data: Any, make_model: Callable[..., torch.nn.Module], model:
     n = len(data.features)
     features = _with_lags(data.features, slots, distinct)
     columns = []
-    for lag in chosen:
+    for lag, rate_only in inputs:
         # the axis's own temperature, rate and product in the paper's slots and in every lag's: no axis
         # sees another's inputs (in the linear terms they would only add what that axis does not need)
         k = n + 3 * distinct.index(lag) if lag else None
-        own = slots if k is None else [k, k + 1, k + 2]
+        own = slots if k is None else [slots[0] if rate_only else k, k + 1, k + 2]
         axis = list(range(n)) + own * len(distinct)
         for slot, column in zip(slots, own):
             axis[slot] = column
         columns.append(axis)
     model = make_model(len(features), columns)
     model.lag_by_axis_s = chosen
+    model.rate_lag_only_by_axis = [rate_only for _, rate_only in inputs]
     return with_features(data, features), model
 
-
-__all__ = ["LAG_GAIN", "choose_lags", "lagged_specs", "paper_slots", "screen_errors", "with_axis_lags"]
+__all__ = ["LAG_GAIN", "choose_inputs", "choose_lags", "lagged_specs", "paper_slots", "screen_errors", "with_axis_lags"]

@@ -25,7 +25,8 @@ log = logging.getLogger(__name__)
 def model_info(model: torch.nn.Module) -> dict[str, Any]:
     """Class and constructor settings of a model, for ``meta.json`` and hparams."""
     info: dict[str, Any] = {"class": type(model).__name__}
-    for key in ("n_centers", "width_init", "rbf_inputs", "use_linear", "temp_degree", "clamp", "degree", "lag_by_axis_s"):
+    for key in ("n_centers", "width_init", "rbf_inputs", "use_linear", "temp_degree", "clamp", "degree", "lag_by_axis_s",
+                "rate_lag_only_by_axis"):
         if hasattr(model, key):
             info[key] = getattr(model, key)
     info["n_parameters"] = int(sum(p.numel() for p in model.parameters()) + sum(
