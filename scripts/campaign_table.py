@@ -16,6 +16,7 @@ from _cli import command  # noqa: E402
 
 log = logging.getLogger(__name__)
 MODEL_CONF = Path(__file__).resolve().parents[1] / "conf" / "model"
+DATA_CONF = MODEL_CONF.parent / "data" / "default.yaml"
 
 
 @command("campaign", schemas={"train": "gyronet.training.train.fit", "seed": int}, required=("runs",))
@@ -42,19 +43,21 @@ def main(cfg: DictConfig) -> None:
 
 
 def _model_yaml(name: str) -> tuple[DictConfig, dict]:
-    """``conf/model/<name>.yaml``: the model's spec, and the data settings a ``_global_`` one (px4) makes."""
+    """``conf/model/<name>.yaml``: the model's spec, and the data settings a ``_global_`` one (px4) makes
+    (dT/dt's time constant from ``conf/data/default.yaml``, as ``train.py`` takes it)."""
     path = MODEL_CONF / f"{name}.yaml"
     if not path.is_file():
         known = ", ".join(sorted(p.stem for p in MODEL_CONF.glob("*.yaml")))
         raise GyronetError(f"models: no conf/model/{name}.yaml (known: {known}, raw)")
     conf = OmegaConf.load(path)
+    rate_tau_s = float(OmegaConf.load(DATA_CONF).rate_tau_s)
     if "model" not in conf:  # a bare model spec, trained on conf/data's defaults
-        return conf, {}
+        return conf, {"rate_tau_s": rate_tau_s}
     data = conf.get("data") or {}
     options = {k: OmegaConf.to_container(data[k]) if k == "features" else data[k]
                for k in ("features", "block_s", "run_offsets") if k in data}
     options["in_sample"] = "val_path" in data  # validated on its own recording (PX4 holds nothing out)
-    return conf.model, options
+    return conf.model, {"rate_tau_s": rate_tau_s, **options}
 
 
 if __name__ == "__main__":
