@@ -28,6 +28,19 @@ def test_rate_on_a_quantised_ramp_is_unbiased_and_quiet(rate_c_per_min, tau_s, m
     assert rate[settled].std() < max_std_c_per_s
 
 
+@pytest.mark.parametrize("tau_s", [2.5, 5.0])
+def test_rate_is_twice_its_time_constant_late_where_the_ramp_curves(tau_s):
+    """Why data.rate_tau_s is short: under a constant d2T/dt2 the type-2 tracker's dT/dt lags by 2 tau."""
+    time_s = np.arange(0, 3000, 1 / FS_HZ)
+    accel_c_per_s2 = 1e-5
+    temp_c = 20 + 0.5 * accel_c_per_s2 * time_s ** 2
+    rate = FeatureExtractor([{"kind": "temp"}, {"kind": "rate", "tau_s": tau_s}], FS_HZ).process(
+        {"time_s": time_s, "temp_c": temp_c})[:, 1]
+    settled = time_s > 20 * tau_s
+    delay_s = (accel_c_per_s2 * time_s[settled] - rate[settled]) / accel_c_per_s2
+    np.testing.assert_allclose(delay_s, 2 * tau_s, rtol=0.01)
+
+
 def test_rate_is_zero_on_a_dwell_and_product_is_t_times_rate():
     time_s, temp_c, _ = _ramp(0.0)
     features = FeatureExtractor(PAPER_FEATURES, FS_HZ).process({"time_s": time_s, "temp_c": temp_c})

@@ -80,7 +80,8 @@ class RateTracker:
     """Critically damped alpha-beta tracker: level and slope of a quantised, noisy signal.
 
     A type-2 loop: on a constant ramp the slope estimate has no lag and no bias, which a
-    differentiated low-pass filter cannot give. Both poles sit at exp(-dt/tau).
+    differentiated low-pass filter cannot give; where the ramp curves (a constant second
+    derivative) it is 2 tau late. Both poles sit at exp(-dt/tau).
 
     Across a gap no longer than ``tau_s`` the state predicts through it (level + slope * gap,
     slope kept) and the next sample updates that prior as usual, so the error carried over is

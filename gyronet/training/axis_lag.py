@@ -201,4 +201,5 @@ def with_axis_lags(data: Any, make_model: Callable[..., torch.nn.Module], model:
     model.rate_lag_only_by_axis = [rate_only for _, rate_only in inputs]
     return with_features(data, features), model
 
+
 __all__ = ["LAG_GAIN", "choose_inputs", "choose_lags", "lagged_specs", "paper_slots", "screen_errors", "with_axis_lags"]
