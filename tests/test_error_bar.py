@@ -10,7 +10,7 @@ import torch
 from gyronet.bundle.compensator import Compensator
 from gyronet.recordings.data import load_recording
 from gyronet.model.error_bar import ErrorBar, stack_members
-from gyronet.training.error_bar_fit import calibrate
+from gyronet.training.error_bar_fit import calibrate, cross_check
 from gyronet.errors import BundleError
 from gyronet.model.rbf import RBFNet
 from gyronet.bundle.offline import SIGMA_COLUMNS, compensate_file
@@ -100,6 +100,23 @@ def test_calibration_recovers_a_known_bar():
     floor, scale, info = calibrate(stats)
     assert np.all(scale == 1.0) and np.all(floor > 0.0025)
     assert all(0.6 < w < 0.76 for w in info["within_1_sigma"])
+
+
+def test_cross_check_scores_each_run_on_a_floor_fitted_on_the_others():
+    """Runs alike: about 68 % within; one run twice as wrong as the other: each run's own figure shows it."""
+    rng = np.random.default_rng(2)
+
+    def run(floor_dps):
+        n = 4000
+        return {"residual": rng.normal(0.0, floor_dps, (n, 3)), "spread": np.zeros((n, 3)),
+                "outside": np.zeros((n, 3)), "noise_var": np.zeros(3)}
+
+    pooled, by_run = cross_check([run(0.002), run(0.002)])
+    assert all(0.64 < w < 0.72 for w in pooled + by_run[0] + by_run[1])  # 68.3 % +- 0.7 % (1 sigma)
+    pooled, (calm, wild) = cross_check([run(0.002), run(0.004)])
+    # the calm run under the wild run's floor (2 sigma of its own): 95 %; the wild one under the calm one's: 38 %
+    assert all(w > 0.92 for w in calm) and all(w < 0.42 for w in wild)
+    assert cross_check([run(0.002)]) is None
 
 
 def test_block_coverage_counts_blocks_within_one_sigma():

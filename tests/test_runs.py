@@ -131,6 +131,12 @@ def test_train_script_on_two_runs_writes_every_run_and_every_fold(tmp_path, pape
         assert run["n_samples"] == len(recording)
         assert run["temp_range_c"] == [recording.temp_c.min(), recording.temp_c.max()]
     assert len(meta["data_sha256"]) == 64 and set(meta["run_offsets_dps"]) == {"paper", "cycle"}
+    # the error bar: floor from both folds, and each run's blocks scored on a floor from the other alone
+    calibration = meta["error_bar"]["calibration"]
+    assert calibration["held_out"] == ["paper", "cycle"] and calibration["startup_s"] == 0
+    shares = [calibration["cross_within_1_sigma"], *calibration["cross_within_1_sigma_by_run"].values()]
+    assert len(shares) == 3 and all(len(s) == 3 and all(0 <= w <= 1 for w in s) for s in shares)
+    assert "error bar cross-check" in proc.stdout and "this one recording" not in proc.stdout
     assert meta["temp_range_c"] == [min(r["temp_range_c"][0] for r in meta["runs"]),
                                     max(r["temp_range_c"][1] for r in meta["runs"])]
 

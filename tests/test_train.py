@@ -41,6 +41,7 @@ def test_train_script_writes_bundle_report_and_tensorboard(tmp_path, paper_csv, 
     # the held-out figures reach the console, not only report.json
     ratio = report["eval"][str(cycle_csv)]["truth"]["ratio_to_floor"]
     assert f"held-out cycle.csv: residual / noise floor x={ratio['x']:.4g}, y={ratio['y']:.4g}" in console[0]
+    assert "error bar: calibrated on held-out time blocks of this one recording" in console[0]  # and how far to trust it
     assert {"model.pt", "meta.json"} <= {p.name for p in (tmp_path / "compensator").iterdir()}
     meta = json.loads((tmp_path / "compensator" / "meta.json").read_text())
     # the paper's inputs, then those of any axis lag the screen kept (gyronet.training.axis_lag)

@@ -8,7 +8,7 @@ into the bar's floor and spread scale once the bundle's members are final.
 from __future__ import annotations
 
 import logging
-from typing import Any, Mapping, Sequence
+from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 import torch
@@ -93,26 +93,53 @@ def white_noise_var(time_s: np.ndarray, y: np.ndarray, block_s: float = BLOCK_S)
 
 
 def held_out_stats(model: torch.nn.Module, parts: Sequence[torch.nn.Module] | None, time_s: np.ndarray,
-                   x: np.ndarray, y: np.ndarray, x_train: np.ndarray) -> dict[str, np.ndarray]:
+                   x: np.ndarray, y: np.ndarray, x_train: np.ndarray,
+                   adjust: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None) -> dict[str, np.ndarray]:
     """Held-out 60 s blocks: residual (measured - predicted), members' spread, box term, and the noise variance.
 
     ``time_s, x, y`` are held-out samples at the full rate; ``model`` and ``parts`` the fits validated
-    on them, before any refit; ``x_train`` the features they were trained on.
+    on them, before any refit; ``x_train`` the features they were trained on; ``adjust(time_s,
+    residual)`` the residual as deployed (a held-out run's start-up offset removed, ``RunsData.val_adjust``).
     """
     from gyronet.training.steps import predict
 
     bar = shape_of(model, parts, x_train)
-    return {"residual": residual_block_means(time_s, y - predict(model, x), BLOCK_S),
+    residual = y - predict(model, x)
+    if adjust is not None:
+        residual = adjust(time_s, residual)
+    return {"residual": residual_block_means(time_s, residual, BLOCK_S),
             "spread": residual_block_means(time_s, bar.spread(x), BLOCK_S),
             "outside": residual_block_means(time_s, bar.outside_dps(x), BLOCK_S),
             "noise_var": white_noise_var(time_s, y)}
 
 
-def merge_stats(stats: Sequence[Mapping[str, np.ndarray]]) -> dict[str, np.ndarray]:
-    """Several held-out sets (folds) as one: blocks stacked, the noise variance averaged."""
-    out = {k: np.concatenate([s[k] for s in stats]) for k in ("residual", "spread", "outside")}
+def merge_stats(stats: Sequence[Mapping[str, np.ndarray]], info: Mapping[str, Any] | None = None) -> dict[str, Any]:
+    """Several held-out sets (folds) as one: blocks stacked, the noise variance averaged; ``info`` for the record."""
+    out: dict[str, Any] = {k: np.concatenate([s[k] for s in stats]) for k in ("residual", "spread", "outside")}
     out["noise_var"] = np.mean([s["noise_var"] for s in stats], axis=0)
+    if info:
+        out["info"] = dict(info)
     return out
+
+
+def cross_check(folds: Sequence[Mapping[str, np.ndarray]]) -> tuple[list[float], list[list[float]]] | None:
+    """Per axis, the share of each held-out run's blocks within a bar calibrated on the other runs' blocks only.
+
+    The bundle's floor is fitted on every fold's blocks, so its own coverage is in sample; this is
+    the bar's coverage on a run it was not calibrated on. Returns the share over every fold's
+    blocks and each fold's own (None with fewer than two folds): runs that differ can cancel in
+    the first, one too wide and one too narrow, and show in the second.
+    """
+    if len(folds) < 2:
+        return None
+    hits, sizes = [], []
+    for k, own in enumerate(folds):
+        floor, scale, _ = calibrate(merge_stats([s for i, s in enumerate(folds) if i != k]))
+        var = floor ** 2 + (scale * own["spread"]) ** 2 + own["outside"] ** 2 + own["noise_var"]
+        hits.append(np.sum(own["residual"] ** 2 <= var, axis=0))
+        sizes.append(max(len(own["residual"]), 1))
+    pooled = np.sum(hits, axis=0) / max(sum(sizes), 1)
+    return pooled.tolist(), [(h / n).tolist() for h, n in zip(hits, sizes)]
 
 
 def calibrate(stats: Mapping[str, np.ndarray], fit_scale: bool = False) -> tuple[np.ndarray, np.ndarray, dict[str, Any]]:
@@ -163,10 +190,16 @@ def fit_error_bar(model: torch.nn.Module, x_train: np.ndarray, stats: Mapping[st
         return None
     bar = shape_of(model, parts, x_train)
     bar.floor_dps, bar.spread_scale, bar.calibration = calibrate(stats)
+    bar.calibration.update(stats.get("info", {}))  # a campaign's held-out runs and their cross-check
     log.info("error bar (%d members, %d held-out %g s blocks): floor %s deg/s, spread scale %s; within 1 sigma "
              "on those blocks %s", bar.n_members, bar.calibration["n_blocks"], BLOCK_S,
              "/".join(f"{v:.3g}" for v in bar.floor_dps), "/".join(f"{v:.3g}" for v in bar.spread_scale),
              "/".join(f"{v:.0%}" for v in bar.calibration["within_1_sigma"]))
+    by_run = bar.calibration.get("cross_within_1_sigma_by_run")
+    if by_run:
+        log.info("error bar cross-check: each held-out run's blocks within 1 sigma of a floor fitted on the other "
+                 "runs only: %s; %s (goal 60-76 %%)", "/".join(f"{v:.0%}" for v in bar.calibration["cross_within_1_sigma"]),
+                 ", ".join(f"{name} " + "/".join(f"{v:.0%}" for v in shares) for name, shares in by_run.items()))
     return bar
 
 
@@ -213,5 +246,5 @@ def detach(model: torch.nn.Module) -> tuple[dict | None, list | None, bool]:
     return model.__dict__.pop(STATS_ATTR, None), model.__dict__.pop(MEMBERS_ATTR, None), attached
 
 
-__all__ = ["attach", "calibrate", "detach", "error_bar_meta", "fit_error_bar", "held_out_stats", "merge_stats", "shape_of",
+__all__ = ["attach", "calibrate", "cross_check", "detach", "error_bar_meta", "fit_error_bar", "held_out_stats", "merge_stats", "shape_of",
            "white_noise_var"]

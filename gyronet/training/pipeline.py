@@ -156,7 +156,12 @@ def train_run(data: DriftData, model: torch.nn.Module, optim: Callable | None, o
         log.info("validation 60 s RMSE over the %d fits tried (starts and seeds): %s", int(metrics["val/fits_tried"]),
                  ", ".join(f"{a} {metrics[f'val/lowest_{a}_dps']:.4g}-{metrics[f'val/highest_{a}_dps']:.4g} deg/s "
                            f"({metrics[f'val/spread_{a}_pct']:.0f} %)" for a in AXES))
-    bundle_dir = save_bundle(model, _meta(model, data), out_dir / "compensator", kalman_stage(kalman_cfg, model, data))
+    meta = _meta(model, data)
+    if folds is None and "error_bar" in meta:
+        log.warning("error bar: calibrated on held-out time blocks of this one recording; on a real sensor's next "
+                    "run the error was 5-20x the bar (docs/results/error-bars.md). Train on two or more runs "
+                    "(data.paths) for a bar checked on a run it was not calibrated on")
+    bundle_dir = save_bundle(model, meta, out_dir / "compensator", kalman_stage(kalman_cfg, model, data))
     evaluations = evaluate_paths(bundle_dir, eval_paths, eval_block_s)
     report = {"model": model_info(model), "train_path": data.path, "metrics": metrics,
               "eval": {p: {k: v for k, v in r.items() if k != "_arrays"} for p, r in evaluations.items()}}

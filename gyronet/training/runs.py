@@ -161,7 +161,8 @@ def fit_by_run(model: nn.Module, data: RunsData, optim: Callable | None = None, 
         metrics = fit(fold_model, fold_data, optim, seed=seed, **fit_kwargs)
         time_s, x, y = fold_data.val_full
         residual = y - predict(fold_model, x)
-        fold_stats.append(error_bar_fit.held_out_stats(fold_model, None, time_s, x, y, fold_data.train.x))
+        fold_stats.append(error_bar_fit.held_out_stats(fold_model, None, time_s, x, y, fold_data.train.x,
+                                                       fold_data.val_adjust))
         low, high = fold_data.temp_range_c
         temp = run.temp_c
         folds.append({"held_out": run.name, "path": run.path,
@@ -176,7 +177,10 @@ def fit_by_run(model: nn.Module, data: RunsData, optim: Callable | None = None, 
                  ", ".join(f"{a}={metrics[f'val/rmse_{a}_dps']:.4g}" for a in "xyz"))
     steps = int(np.median(best_steps)) if best_steps else None
     final = fit(model, data, optim, seed=seed, writer=writer, stop_at_step=steps, **fit_kwargs)
-    error_bar_fit.attach(model, error_bar_fit.merge_stats(fold_stats))
+    pooled, by_run = error_bar_fit.cross_check(fold_stats)
+    error_bar_fit.attach(model, error_bar_fit.merge_stats(fold_stats, {
+        "held_out": [r.name for r in data.runs], "startup_s": data.val_startup_s, "cross_within_1_sigma": pooled,
+        "cross_within_1_sigma_by_run": dict(zip((r.name for r in data.runs), by_run))}))
     out = {"train/loss": final["train/loss"]}
     for key in [f"val/rmse_{a}_dps" for a in "xyz"] + ["val/rmse_dps"]:
         out[key] = float(np.mean([f[key] for f in folds]))
