@@ -1,12 +1,17 @@
 """Shared fixtures: seeded simulated recordings with known drift and noise, and a trained bundle."""
-from pathlib import Path
-
 import os
 
-import pytest
-from hypothesis import HealthCheck, settings
+# two xdist workers on two cores: each one, and every script a test starts, on one BLAS / OpenMP thread
+# (threads fighting for the cores made the suite 1.3x slower); set before numpy and torch start theirs
+for _threads in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_threads, "1")
 
-from gyronet.sim import simulate, write_simulation
+from pathlib import Path  # noqa: E402
+
+import pytest  # noqa: E402
+from hypothesis import HealthCheck, settings  # noqa: E402
+
+from gyronet.sim import simulate, write_simulation  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 SHARED = ROOT.parent / "shared"

@@ -1,5 +1,6 @@
 """The per-sample error bar (gyronet.model.error_bar): columns, offline == live, wider outside the box, calibrated."""
 import copy
+import logging
 import json
 import math
 
@@ -165,6 +166,18 @@ def test_bundle_records_its_error_bar_and_old_bundles_give_nan(bundle, caplog):
     damaged["error_bar"]["floor_dps"] = [1.0, 2.0]
     with pytest.raises(BundleError, match="error_bar.floor_dps"):
         Compensator(loaded.model, damaged)
+
+
+def test_a_bar_calibrated_with_a_startup_offset_asks_for_one(bundle, caplog):
+    loaded = Compensator.load(bundle)
+    meta = copy.deepcopy(loaded.meta)
+    meta["error_bar"]["calibration"]["startup_s"] = 600.0  # as a campaign trained with data.val_startup_s=600
+    compensator = Compensator(loaded.model, meta)
+    with caplog.at_level(logging.WARNING):
+        compensator.use_startup(600.0)
+        assert "start-up offset" not in caplog.text
+        compensator.use_startup(0.0)
+    assert "use startup.still_s=600" in caplog.text
 
 
 def test_offline_and_live_rows_give_the_same_sigma(bundle, cycle_csv):

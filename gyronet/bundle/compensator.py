@@ -154,6 +154,11 @@ class Compensator:
         from gyronet.bundle.startup import StartupOffset
 
         self.startup = StartupOffset(still_s, motion_dps, static_rate_dps or (0.0, 0.0, 0.0)) if still_s else None
+        calibrated_s = 0.0 if self.error_bar is None else float(self.error_bar.calibration.get("startup_s") or 0.0)
+        if calibrated_s > 0 and not still_s:
+            log.warning("the error bar was calibrated with a start-up offset over the first %g s; without one "
+                        "(startup.still_s=0) the run's turn-on bias is in the error and not in drift_sigma: use "
+                        "startup.still_s=%g", calibrated_s, calibrated_s)
 
     def check_columns(self, columns: Mapping[str, Any], source: str = "input") -> None:
         """Raise a BundleError naming the columns this bundle needs and ``source`` lacks."""
