@@ -137,6 +137,7 @@ def test_train_script_on_two_runs_writes_every_run_and_every_fold(tmp_path, pape
     shares = [calibration["cross_within_1_sigma"], *calibration["cross_within_1_sigma_by_run"].values()]
     assert len(shares) == 3 and all(len(s) == 3 and all(0 <= w <= 1 for w in s) for s in shares)
     assert "error bar cross-check" in proc.stdout and "this one recording" not in proc.stdout
+    assert [report["metrics"][f"val/cross_within_1_sigma_{a}"] for a in "xyz"] == calibration["cross_within_1_sigma"]
     assert meta["temp_range_c"] == [min(r["temp_range_c"][0] for r in meta["runs"]),
                                     max(r["temp_range_c"][1] for r in meta["runs"])]
 
