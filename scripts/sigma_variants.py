@@ -1,10 +1,11 @@
-"""How the error bar's method constants were set: python scripts/sigma_variants.py [SENSOR ...] (default 10 11).
+"""How the error bar's method constants were set: python scripts/sigma_variants.py [SENSOR ...] (default 10-15).
 
 On calibration sensors only (never the ones scripts/sigma_table.py scores): each is simulated on the paper
 staircase at 2 Hz, trained with the default model (in-process, so the held-out statistics of the fit are at
 hand), and checked on a random (seed 5) and a cycle (seed 6) history against the truth. Printed: the share
-of 60 s blocks within 1 sigma per sensor, history and axis for three calibration rules (floor and scale by
-maximum likelihood; floor alone, spread at face value; the floor as the held-out RMS, no spread) and five
+of 60 s blocks within 1 sigma per sensor, history and axis for four calibration rules (floor and scale by
+maximum likelihood; the floor alone, spread at face value, by maximum likelihood or as its posterior mean
+under a flat prior, the default; the floor as the held-out RMS, no spread) and five
 extrapolation shares (gyronet.training.error_bar_fit.EXTRAPOLATION_SHARE). Records go to outputs/sigma_variants/.
 """
 import sys
@@ -30,7 +31,9 @@ HISTORIES = (("random", 5), ("cycle", 6))
 def _floor(stats: dict, rule: str) -> tuple[np.ndarray, np.ndarray]:
     if rule == "floor and scale":
         floor, scale, _ = error_bar_fit.calibrate(stats, fit_scale=True)
-    elif rule == "floor, spread as is":
+    elif rule == "floor, maximum likelihood":
+        floor, scale, _ = error_bar_fit.calibrate(stats, posterior=False)
+    elif rule == "floor, posterior mean":  # the default
         floor, scale, _ = error_bar_fit.calibrate(stats)
     else:  # the held-out RMS less the noise, no spread
         floor = np.sqrt(np.maximum((stats["residual"] ** 2).mean(0) - stats["noise_var"], 1e-12))
@@ -65,7 +68,7 @@ def main(sensors: list[int]) -> None:
                 bar.slope_low_dps, bar.slope_high_dps = error_bar_fit.edge_slopes(
                     model, x_fit, error_bar_fit.box_of(model, x_fit), share)
                 spread, outside = bar.spread(features), bar.outside_dps(features)
-                for rule in ("floor and scale", "floor, spread as is", "held-out RMS"):
+                for rule in ("floor and scale", "floor, maximum likelihood", "floor, posterior mean", "held-out RMS"):
                     floor, scale = _floor(stats, rule)
                     sigma = np.sqrt(floor ** 2 + (scale * spread) ** 2 + outside ** 2)
                     score = block_coverage(recording.time_s, error, sigma, out.out_of_range)
@@ -79,4 +82,4 @@ def main(sensors: list[int]) -> None:
 
 
 if __name__ == "__main__":
-    main([int(a) for a in sys.argv[1:]] or [10, 11])
+    main([int(a) for a in sys.argv[1:]] or list(range(10, 16)))

@@ -22,9 +22,9 @@ STATS_ATTR = "_error_bar_stats"  # held-out statistics a fit attaches to its mod
 MEMBERS_ATTR = "_error_bar_members"  # the bundle's members (the starts it mixes), when more than one
 CACHE_ATTR = "_error_bar_meta"  # (data, the meta.json block) once computed
 # beyond the box, a straight-line continuation is taken to be off by this share of its slope (per
-# normalised unit of distance); set once on calibration sensors 10 and 11 (README "Error bars"), never
-# on the sensors the table scores
-EXTRAPOLATION_SHARE = 0.1
+# normalised unit of distance); set on calibration sensors 10-15 with the posterior floor (0: only what the
+# slope curves is counted; docs/guides/error-bars.md), never on the sensors the table scores
+EXTRAPOLATION_SHARE = 0.0
 MIN_BLOCKS = 4  # fewer held-out blocks than this: the floor is their RMS, the spread scale 1
 _FLOOR_GRID = np.geomspace(1e-3, 3.0, 200)  # times the held-out blocks' RMS
 _SCALE_GRID = np.concatenate([[0.0], np.geomspace(0.05, 30.0, 60)])
@@ -142,14 +142,19 @@ def cross_check(folds: Sequence[Mapping[str, np.ndarray]]) -> tuple[list[float],
     return pooled.tolist(), [(h / n).tolist() for h, n in zip(hits, sizes)]
 
 
-def calibrate(stats: Mapping[str, np.ndarray], fit_scale: bool = False) -> tuple[np.ndarray, np.ndarray, dict[str, Any]]:
-    """Per axis, the floor (and with ``fit_scale`` the spread scale) of maximum Gaussian likelihood on the held-out blocks.
+def calibrate(stats: Mapping[str, np.ndarray], fit_scale: bool = False,
+              posterior: bool = True) -> tuple[np.ndarray, np.ndarray, dict[str, Any]]:
+    """Per axis, the floor (and with ``fit_scale`` the spread scale) from the Gaussian likelihood of the held-out blocks.
 
     Block b's residual has variance floor^2 + (scale spread_b)^2 + outside_b^2 + noise: the noise
     of a 60 s mean is known and the box term fixed, so the free numbers are found on a grid. The
-    scale stays 1 (the members' spread taken as it is) unless ``fit_scale``: the held-out blocks of
-    one recording are two or three spans, too few to tell a floor from a scale (on calibration
-    sensors 10 and 11 fitting both was the worse of the two, README "Error bars").
+    floor is the square root of floor^2's posterior mean under a flat prior on the floor
+    (``posterior``; else the likelihood's maximum): where a 60 s mean's noise swamps the drift
+    error, the maximum sits at 0 although the blocks only bound the floor, and the mean keeps what
+    they allow. The scale stays 1 (the members' spread taken as it is) unless ``fit_scale`` (both by
+    maximum likelihood): the held-out blocks of one recording are two or three spans, too few to
+    tell a floor from a scale. Both choices were made on calibration sensors 10-15
+    (``scripts/sigma_variants.py``, docs/guides/error-bars.md).
 
     Returns
     -------
@@ -168,12 +173,16 @@ def calibrate(stats: Mapping[str, np.ndarray], fit_scale: bool = False) -> tuple
         fixed = outside[:, a] ** 2 + noise[a]
         # var[i, j, b] for floor i, scale j, block b
         scales = _SCALE_GRID if fit_scale else np.ones(1)
-        var = ((_FLOOR_GRID * rms) ** 2)[:, None, None] + (scales ** 2)[None, :, None] * (spread[:, a] ** 2)[None, None] \
+        grid = _FLOOR_GRID * rms
+        var = (grid ** 2)[:, None, None] + (scales ** 2)[None, :, None] * (spread[:, a] ** 2)[None, None] \
             + fixed[None, None]
         nll = np.sum(np.log(var) + r2[None, None] / var, axis=2)
         i, j = np.unravel_index(int(np.argmin(nll)), nll.shape)
-        floor[a], scale[a] = _FLOOR_GRID[i] * rms, scales[j]
-        within[a] = np.mean(r2 <= var[i, j])
+        floor[a], scale[a] = grid[i], scales[j]
+        if posterior and not fit_scale:
+            weight = np.exp(-0.5 * (nll[:, 0] - nll[i, 0])) * np.gradient(grid)  # flat prior on the geometric grid
+            floor[a] = float(np.sqrt(np.sum(weight * grid ** 2) / np.sum(weight)))
+        within[a] = np.mean(r2 <= floor[a] ** 2 + (scale[a] * spread[:, a]) ** 2 + fixed)
     info = {"block_s": BLOCK_S, "n_blocks": int(len(residual)), "within_1_sigma": within.tolist(),
             "noise_block_dps": np.sqrt(noise).tolist()}
     return floor, scale, info
