@@ -11,10 +11,10 @@ Per axis ``a`` and sample ``x`` (the causal features the drift is computed from)
   Outside it the model holds its edge value (temperature) or continues a straight line (the rate
   terms); ``slope_af`` is the model's own RMS sensitivity to that feature over the training
   samples nearest that edge, so the bar grows as fast as the drift was changing where the data end.
-- ``floor_a`` and ``spread_scale_a``: Gaussian maximum likelihood on the training's own held-out
-  60 s blocks (never on evaluation data), with the white noise of a 60 s mean (from the held-out
-  samples' first differences) as a known extra variance, so that ``sigma`` is the error of the drift
-  alone, not of the noise.
+- ``floor_a`` and ``spread_scale_a``: from the Gaussian likelihood of the training's own held-out
+  60 s blocks (``gyronet.training.error_bar_fit.calibrate``; never on evaluation data), with the
+  white noise of a 60 s mean (from the held-out samples' first differences) as a known extra
+  variance, so that ``sigma`` is the error of the drift alone, not of the noise.
 
 The same numbers in floats for one row (the live path) and in C (``gyronet.deploy.c._error_bar``).
 A bundle without an error bar (trained before it existed) gives NaN.
