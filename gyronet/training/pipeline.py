@@ -157,9 +157,6 @@ def train_run(data: DriftData, model: torch.nn.Module, optim: Callable | None, o
                  ", ".join(f"{a} {metrics[f'val/lowest_{a}_dps']:.4g}-{metrics[f'val/highest_{a}_dps']:.4g} deg/s "
                            f"({metrics[f'val/spread_{a}_pct']:.0f} %)" for a in AXES))
     meta = _meta(model, data)
-    cross = meta.get("error_bar", {}).get("calibration", {}).get("cross_within_1_sigma")
-    if cross is not None:  # a campaign's bar on runs it was not calibrated on (gyronet.training.error_bar_fit)
-        metrics.update({f"val/cross_within_1_sigma_{a}": float(v) for a, v in zip(AXES, cross)})
     if folds is None and "error_bar" in meta:
         log.warning("error bar: calibrated on held-out time blocks of this one recording; on a real sensor's next "
                     "run the error was 5-20x the bar (docs/results/error-bars.md). Train on two or more runs "

@@ -181,7 +181,7 @@ def fit_by_run(model: nn.Module, data: RunsData, optim: Callable | None = None, 
     error_bar_fit.attach(model, error_bar_fit.merge_stats(fold_stats, {
         "held_out": [r.name for r in data.runs], "startup_s": data.val_startup_s, "cross_within_1_sigma": pooled,
         "cross_within_1_sigma_by_run": dict(zip((r.name for r in data.runs), by_run))}))
-    out = {"train/loss": final["train/loss"]}
+    out = {"train/loss": final["train/loss"], **{f"val/cross_within_1_sigma_{a}": v for a, v in zip("xyz", pooled)}}
     for key in [f"val/rmse_{a}_dps" for a in "xyz"] + ["val/rmse_dps"]:
         out[key] = float(np.mean([f[key] for f in folds]))
     if steps is not None:
