@@ -495,6 +495,26 @@ def test_turn_on_bias_is_a_constant_per_run_seed_apart_from_the_temperature_curv
         simulate("constant", 1.0, duration_s=60, sensor={"turn_on_bias_dps": -1.0})
 
 
+def test_run_bump_is_new_each_run_and_sits_in_the_runs_temperatures():
+    kwargs = dict(fs_hz=0.05, sensor_seed=3, duration_s=6 * 3600, sensor={"run_bump_dps": [0.1, 0.0, 0.05]})
+    runs = [simulate("random", seed=s, **kwargs) for s in range(30)]
+    bumps = np.array([gyro(r, "truth", "run_bump") for r in runs])
+    peaks = np.array([b[np.argmax(np.abs(b), axis=0), range(3)] for b in bumps])
+    assert np.allclose(peaks[:, 1], 0.0)
+    assert np.std(peaks[:, [0, 2]], axis=0) == pytest.approx([0.1, 0.05], rel=0.4)  # its peak is near the amplitude
+    assert len(np.unique(np.round(peaks[:, 0], 9))) == 30  # a bump of each run's own
+    run = runs[4]
+    die = run.truth["die_temp_c"]
+    centre = die[np.argmax(np.abs(bumps[4][:, 0]))]
+    assert np.percentile(die, 5) - 0.5 <= centre <= np.percentile(die, 95) + 0.5
+    plain = simulate("random", seed=4, **{**kwargs, "sensor": {}})
+    assert np.allclose(gyro(run, "truth", "drift"), gyro(plain, "truth", "drift") + bumps[4], atol=1e-12)
+    # the same noise, but for the output quantisation's share (one step at most)
+    assert np.abs(gyro(run, "truth", "noise") - gyro(plain, "truth", "noise")).max() <= 0.00875 + 1e-12
+    with pytest.raises(GyronetError, match="run_bump_dps must be >= 0"):
+        simulate("constant", 1.0, duration_s=60, sensor={"run_bump_dps": -1.0})
+
+
 @pytest.mark.parametrize("name, axis, sign", [("z_up", 2, 1), ("z_down", 2, -1), ("y_up", 1, 1),
                                               ("y_down", 1, -1), ("x_up", 0, 1), ("x_down", 0, -1)])
 def test_named_orientation_turns_gravity_and_the_earth_rate(name, axis, sign):

@@ -16,6 +16,11 @@ vity_dps_per_g``     with this standard deviation per entry (one number), or giv
 ``orientation``      ``z_up``, ``z_down``, ``y_up``, ``y_down``, ``x_up``, ``x_down``: which axis points
                      along gravity (``*_down``: that accelerometer reads -1 g, as in the cats-tag
                      names); it turns the Earth rate, the accelerometer and ``G @ f`` accordingly
+``run_bump_dps``     standard deviation (deg/s, one or three values) of a bump per axis in the die
+                     temperature that this run has and the next does not (one Gaussian, 1-3 degC wide,
+                     centred where the run's temperatures are, drawn from the run's ``seed``): what
+                     the real cats-tag x axis shows (a fall of about 0.17 deg/s at 5.5-8 degC in one
+                     run only), and what a model fitted to one run adds to the next
 ``decimate``         average every ``decimate`` samples into one (e.g. 20 Hz to 1 Hz with 20), every
                      recording and truth column alike, as the real data were resampled
 ``loss``             ``{fraction, bursts_per_h, burst_s}``: rows dropped from the written recording
@@ -23,11 +28,12 @@ vity_dps_per_g``     with this standard deviation per entry (one number), or giv
                      same rows from the truth
 ==================== =================================================================================
 
-The turn-on bias and the g-sensitivity term are part of the truth's ``drift_*`` (what a compensator
+The turn-on bias, the g-sensitivity term and the run's bump are part of the truth's ``drift_*`` (what a compensator
 must remove, so ``gyro = true_rate + drift + noise`` still holds), and are also written on their own
-as ``turn_on_bias_*_dps`` and ``g_sensitivity_*_dps``: neither follows temperature, so a model of
-temperature trained on other runs cannot predict them; only a per-run offset (``startup.still_s``)
-removes them. ``drift - turn_on_bias - g_sensitivity`` is what the runs of one sensor share.
+as ``turn_on_bias_*_dps``, ``g_sensitivity_*_dps`` and ``run_bump_*_dps``: none repeats from run to run,
+so a model of temperature trained on other runs cannot predict them; a per-run offset
+(``startup.still_s``) removes the first two, nothing removes the bump.
+``drift - turn_on_bias - g_sensitivity - run_bump`` is what the runs of one sensor share.
 """
 from __future__ import annotations
 
@@ -75,6 +81,22 @@ def turn_on_bias_dps(seed: int, std_dps: Any, sensor_seed: int | None = None) ->
     # its own stream: the noise, the profile and the effects keep theirs
     key = [int(seed), 8] if sensor_seed is None else [int(seed), int(sensor_seed), 8]
     return std * np.random.default_rng(key).standard_normal(N_AXES)
+
+
+def run_bump_dps(seed: int, std_dps: Any, die_c: np.ndarray, sensor_seed: int = 0) -> np.ndarray:
+    """This run's own bump in temperature, shape (n, 3), deg/s: per axis a Gaussian of amplitude normal(0, ``std_dps``).
+
+    Centre uniform between the 5th and 95th percentiles of the run's die temperature, 1-sigma
+    width uniform in 1-3 degC; drawn from the pair (``seed``, ``sensor_seed``) on a stream of its own.
+    """
+    std = per_axis(std_dps, "sensor.run_bump_dps")
+    if np.any(std < 0):
+        raise GyronetError(f"sensor.run_bump_dps must be >= 0, got {std_dps!r}")
+    rng = np.random.default_rng([int(seed), int(sensor_seed), 10])
+    low, high = np.percentile(die_c, [5.0, 95.0])
+    amplitude, centre_c, width_c = std * rng.standard_normal(N_AXES), rng.uniform(low, high, N_AXES), \
+        rng.uniform(1.0, 3.0, N_AXES)
+    return amplitude * np.exp(-0.5 * ((np.asarray(die_c)[:, None] - centre_c) / width_c) ** 2)
 
 
 def g_sensitivity_matrix(sensor_seed: int, value: Any) -> np.ndarray:
