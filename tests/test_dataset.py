@@ -125,3 +125,16 @@ def test_a_fit_that_diverges_says_so_in_one_line(tmp_path):
         fit(model, data, optim=lambda p: torch.optim.SGD(p, lr=1e200), max_epochs=60, progress=False)
     message = str(err.value)
     assert message.startswith("training diverged at step ") and len(message.splitlines()) == 1
+
+
+def test_a_flickering_mask_leaves_no_blocks_of_a_few_samples():
+    """A temperature read in 0.01 degC steps flickers across the box's edge: its pieces are no 60 s means."""
+    rng = np.random.default_rng(0)
+    time_s = np.arange(0.0, 36000.0, 1.0)
+    noise = rng.normal(0.0, 0.1, (len(time_s), 1))  # 0.1 deg/s a 1 Hz sample: 13 mdps a full 60 s mean
+    flicker = rng.random(len(time_s)) < 0.5  # the first half: in and out of the box, sample by sample
+    inside = np.where(time_s < 18000.0, flicker, True)
+    rms = dataset.block_rmse(time_s[inside], noise[inside], 60.0)[0]
+    assert rms == pytest.approx(0.1 / np.sqrt(60.0), rel=0.1)  # the whole blocks of the second half only
+    means = dataset.residual_block_means(time_s[inside], noise[inside], 60.0)
+    assert len(means) == 300

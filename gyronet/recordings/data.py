@@ -197,13 +197,14 @@ def gap_blocks(time_s: np.ndarray, block_s: float) -> np.ndarray:
 
 
 def block_means(values: np.ndarray, time_s: np.ndarray, block_s: float = 60.0,
-                min_fill: float = 0.5) -> np.ndarray:
+                min_fill: float = 0.5, full_count: float | None = None) -> np.ndarray:
     """Average ``values`` (n,) or (n, k) over ``block_s`` time blocks; drop blocks under ``min_fill`` full.
 
     Used for the contract's residual metric (60 s blocks) and to decimate training data, since the
     thermal drift has no content a 60 s average would hide. Blocks restart after a gap longer than
     a block (``gap_blocks``); a block that a shorter gap cuts is averaged over the samples it has.
-    Empty input gives an empty result of the same trailing shape.
+    A full block holds ``full_count`` samples (None: the median block's count). Empty input gives
+    an empty result of the same trailing shape.
     """
     values = np.asarray(values, dtype=np.float64)
     tail = values.shape[1:]
@@ -214,7 +215,7 @@ def block_means(values: np.ndarray, time_s: np.ndarray, block_s: float = 60.0,
     counts = np.bincount(block)
     sums = np.stack([np.bincount(block, weights=flat[:, j], minlength=len(counts))
                      for j in range(flat.shape[1])], axis=1)
-    expected = max(1.0, float(np.median(counts[counts > 0])))
+    expected = max(1.0, float(np.median(counts[counts > 0]) if full_count is None else full_count))
     keep = counts >= min_fill * expected
     means = sums[keep] / counts[keep, None]
     return means.reshape((-1,) + tail)

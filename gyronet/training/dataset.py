@@ -283,10 +283,12 @@ def residual_block_means(time_s: np.ndarray, residual: np.ndarray, block_s: floa
     """The ``block_s`` block means that ``block_rmse`` squares, (m, axes).
 
     Blocks are formed on contiguous runs: a time-block split leaves gaps, and a block never
-    straddles one.
+    straddles one. A block needs half the samples a full one holds at the record's rate: where a
+    mask (the trained temperatures, say) flickers, its pieces of a few samples are no 60 s means.
     """
-    gaps = np.flatnonzero(np.diff(time_s) > 1.5 * np.median(np.diff(time_s))) + 1
-    pieces = [block_means(residual[a:b], time_s[a:b], block_s)
+    step_s = np.median(np.diff(time_s)) if len(time_s) > 1 else block_s
+    gaps = np.flatnonzero(np.diff(time_s) > 1.5 * step_s) + 1
+    pieces = [block_means(residual[a:b], time_s[a:b], block_s, full_count=block_s / step_s)
               for a, b in zip([0, *gaps], [*gaps, len(time_s)]) if b - a > 1]
     return np.concatenate([p for p in pieces if len(p)]) if pieces else np.empty((0, residual.shape[1]))
 
