@@ -1,4 +1,6 @@
 """A thermal lag per axis (gyronet.training.axis_lag): lagged features, the network reading them per axis, the screen."""
+from pathlib import Path
+
 import numpy as np
 import pytest
 import torch
@@ -10,6 +12,8 @@ from gyronet.sim.sensor import first_order_lag
 from gyronet.training.axis_lag import choose_inputs, choose_lags, lagged_specs, screen_errors, with_axis_lags
 
 SPECS = [*PAPER_FEATURES, *lagged_specs(20.0, 5.0)]
+CATS = Path(__file__).resolve().parents[2] / "shared" / "data" / "real" / "cats-tag"
+CATS_RUNS = [str(CATS / "cats_run_z_down.csv.gz"), str(CATS / "cats_run_y_down.csv.gz")]
 
 
 def _temperature(n: int = 30000, fs_hz: float = 10.0):
@@ -181,3 +185,32 @@ def test_a_rate_only_axis_reads_the_reported_temperature_and_the_lagged_rate(lag
     assert made == [[[0, 7, 8, 0, 7, 8, 0, 7, 8], [3, 4, 5, 3, 4, 5, 3, 4, 5], [0, 1, 2, 0, 1, 2, 0, 1, 2]]]
     assert lagged_model.lag_by_axis_s == [30.0, 20.0, 0.0] and lagged_model.rate_lag_only_by_axis == [True, False, False]
     assert lagged_data.n_features == 9
+
+
+def test_a_campaign_deployed_with_a_start_up_offset_is_screened_run_by_run(lagged_sensor_csv, tmp_path):
+    """data.val_startup_s: each run held out whole and scored as the offset leaves it; a real lag still shows."""
+    from gyronet.sim.core import simulate, write_simulation
+    from gyronet.training.runs import training_data
+
+    second = tmp_path / "random.csv"
+    write_simulation(simulate(profile="random", fs_hz=2.0, seed=2, sensor_seed=3, duration_s=6 * 3600.0,
+                              sensor={"axis_lag_s": [0.0, 25.0, 0.0]}), second)
+    paths = [str(lagged_sensor_csv), str(second)]
+    lags = [5.0, 10.0, 20.0, 30.0, 60.0]
+    deployed = screen_errors(training_data(paths=paths, run_offsets=True, val_startup_s=600.0), lags)
+    assert not np.allclose(deployed, screen_errors(training_data(paths=paths, run_offsets=True), lags))
+    chosen = choose_lags(deployed, lags)
+    assert chosen[0] == 0.0 and chosen[2] == 0.0 and chosen[1] in (20.0, 30.0), (chosen, deployed)
+
+
+def test_the_real_tags_y_lag_does_not_survive_the_start_up_window():
+    """Within its runs the tag's y prefers dT/dt a minute late; held out as deployed, the lag costs it."""
+    from gyronet.training.runs import training_data
+
+    lags = [5.0, 10.0, 20.0, 30.0, 60.0]
+    within = choose_inputs(screen_errors(training_data(paths=CATS_RUNS, run_offsets=True), lags, rate_only=True), lags)
+    deployed = screen_errors(training_data(paths=CATS_RUNS, run_offsets=True, val_startup_s=600.0), lags,
+                             rate_only=True)
+    assert within[1][0] == 60.0, within
+    assert choose_inputs(deployed, lags)[1] == (0.0, False), deployed[:, 1]
+    assert deployed[0, 1] < 0.95 * deployed[1:, 1].min()  # every lag of y is worse on the next run, by 5 % or more

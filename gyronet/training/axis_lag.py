@@ -14,7 +14,10 @@ lagged and the temperature as reported: where that does as well, the axis wants 
 rate rather than a thermal lag, and gets only those columns lagged.
 
 Several runs (``data.paths``) are screened together, with a constant per run beside the form (each
-run's turn-on bias), their 2 min chunks held out in turn.
+run's turn-on bias), their 2 min chunks held out in turn; deployed with a start-up offset
+(``data.val_startup_s``), each run is held out whole instead and scored as that offset leaves it,
+since the offset is measured where the features are at their least settled (a ramp just after
+power-up), and a lag that fits within runs can cost every later sample of the next.
 """
 from __future__ import annotations
 
@@ -72,11 +75,15 @@ def screen_errors(data: Any, lags_s: Sequence[float], rate_only: bool = False) -
     slots = paper_slots(data.features)
     wide = with_features(data, _with_lags(data.features, slots, lags_s))
     time_s, x, y, run = _every_block(wide)
-    chunk = np.zeros(len(time_s), dtype=np.int64)
-    for r in np.unique(run):  # 2 min chunks of each run, numbered on across the runs
-        mine = run == r
-        chunk[mine] = chunk.max() + 1 + np.floor((time_s[mine] - time_s[mine].min()) / CHUNK_S).astype(np.int64)
-    fold = chunk % N_FOLDS
+    by_run = _deployed(data)
+    if by_run:  # a campaign deployed with a start-up offset: each run held out in turn, scored as deployed
+        fold = run
+    else:
+        chunk = np.zeros(len(time_s), dtype=np.int64)
+        for r in np.unique(run):  # 2 min chunks of each run, numbered on across the runs
+            mine = run == r
+            chunk[mine] = chunk.max() + 1 + np.floor((time_s[mine] - time_s[mine].min()) / CHUNK_S).astype(np.int64)
+        fold = chunk % N_FOLDS
     runs = (run[:, None] == np.unique(run)[None]).astype(np.float64)  # a constant per run (each run's turn-on bias)
     n = len(data.features)
     columns = [slots] + [[n + 3 * k, n + 3 * k + 1, n + 3 * k + 2] for k in range(len(lags_s))]
@@ -86,17 +93,58 @@ def screen_errors(data: Any, lags_s: Sequence[float], rate_only: bool = False) -
     centres = np.arange(low, high + 0.5 * GRID_STEP_C, GRID_STEP_C)
     errors = np.empty((len(columns), len(AXES)))
     for k, cols in enumerate(columns):
-        basis, residual = np.column_stack([runs, _basis(x[:, cols], centres, low, high)]), np.empty_like(y)
-        for f in range(N_FOLDS):
-            held = fold == f
-            gram = basis[~held].T @ basis[~held]
-            ridge = RIDGE * np.trace(gram) / len(gram) * np.eye(len(gram))
-            residual[held] = basis[held] @ np.linalg.solve(gram + ridge, basis[~held].T @ y[~held]) - y[held]
-        # over 60 s, as scored (a 10 s mean is mostly noise), each run's blocks apart
-        means = np.concatenate([residual_block_means(time_s[run == r], residual[run == r], BLOCK_S)
-                                for r in np.unique(run)])
-        errors[k] = np.sqrt(np.mean(means ** 2, axis=0))
+        basis = np.column_stack([runs, _basis(x[:, cols], centres, low, high)])
+        if by_run:  # each candidate at its best level, as the capacity choice will take it on these folds
+            constants = list(range(runs.shape[1]))
+            errors[k] = np.min([_score_by_run(time_s, x[:, slots[0]], _held_out(basis[:, constants + level], y, fold),
+                                              run, data.val_startup_s)
+                                for level in _levels(len(constants), basis.shape[1])], axis=0)
+        else:
+            residual = _held_out(basis, y, fold)
+            # over 60 s, as scored (a 10 s mean is mostly noise), each run's blocks apart
+            means = np.concatenate([residual_block_means(time_s[run == r], residual[run == r], BLOCK_S)
+                                    for r in np.unique(run)])
+            errors[k] = np.sqrt(np.mean(means ** 2, axis=0))
     return errors
+
+
+def _held_out(basis: np.ndarray, y: np.ndarray, fold: np.ndarray) -> np.ndarray:
+    """Each fold's residual from a ridge least-squares fit on the other folds."""
+    residual = np.empty_like(y)
+    for f in np.unique(fold):
+        held = fold == f
+        gram = basis[~held].T @ basis[~held]
+        ridge = RIDGE * np.trace(gram) / len(gram) * np.eye(len(gram))
+        residual[held] = basis[held] @ np.linalg.solve(gram + ridge, basis[~held].T @ y[~held]) - y[held]
+    return residual
+
+
+def _levels(n_runs: int, n_columns: int) -> list[list[int]]:
+    """``_basis``'s columns (after the run constants) of each capacity level: 1; + t, rate, product; + t^2, t^3; all."""
+    one, t, t2, t3, rate, product = n_runs, n_runs + 1, n_runs + 2, n_runs + 3, n_columns - 2, n_columns - 1
+    return [[one], [one, t, rate, product], [one, t, t2, t3, rate, product], list(range(n_runs, n_columns))]
+
+
+def _deployed(data: Any) -> bool:
+    """Screen by run, as deployed: several runs and a start-up window to score them after (``data.val_startup_s``)."""
+    return isinstance(data, RunsData) and data.n_runs >= 2 and data.val_startup_s > 0
+
+
+def _score_by_run(time_s: np.ndarray, temp_c: np.ndarray, residual: np.ndarray, run: np.ndarray,
+                  startup_s: float) -> np.ndarray:
+    """RMS of every held-out run's 60 s residual means as a start-up offset leaves them, in the other runs' box.
+
+    The offset is the residual's mean over a run's first ``startup_s``: a model that is wrong there
+    (a ramp just after power-up, say) carries that error into every later sample.
+    """
+    means = []
+    for held in np.unique(run):
+        mine, others = run == held, run != held
+        t, res, temp = time_s[mine], residual[mine], temp_c[mine]
+        window = t < t[0] + startup_s
+        keep = ~window & (temp >= temp_c[others].min()) & (temp <= temp_c[others].max())
+        means.append(residual_block_means(t[keep], res[keep] - res[window].mean(0), BLOCK_S))
+    return np.sqrt(np.mean(np.concatenate(means) ** 2, axis=0))
 
 
 def _every_block(data: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
