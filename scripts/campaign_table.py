@@ -44,20 +44,21 @@ def main(cfg: DictConfig) -> None:
 
 def _model_yaml(name: str) -> tuple[DictConfig, dict]:
     """``conf/model/<name>.yaml``: the model's spec, and the data settings a ``_global_`` one (px4) makes
-    (dT/dt's time constant from ``conf/data/default.yaml``, as ``train.py`` takes it)."""
+    (dT/dt's time constant and the start-up window from ``conf/data/default.yaml``, as ``train.py`` takes them)."""
     path = MODEL_CONF / f"{name}.yaml"
     if not path.is_file():
         known = ", ".join(sorted(p.stem for p in MODEL_CONF.glob("*.yaml")))
         raise GyronetError(f"models: no conf/model/{name}.yaml (known: {known}, raw)")
     conf = OmegaConf.load(path)
-    rate_tau_s = float(OmegaConf.load(DATA_CONF).rate_tau_s)
+    defaults = OmegaConf.load(DATA_CONF)
+    taken = {"rate_tau_s": float(defaults.rate_tau_s), "val_startup_s": float(defaults.val_startup_s)}
     if "model" not in conf:  # a bare model spec, trained on conf/data's defaults
-        return conf, {"rate_tau_s": rate_tau_s}
+        return conf, taken
     data = conf.get("data") or {}
     options = {k: OmegaConf.to_container(data[k]) if k == "features" else data[k]
                for k in ("features", "block_s", "run_offsets") if k in data}
     options["in_sample"] = "val_path" in data  # validated on its own recording (PX4 holds nothing out)
-    return conf.model, {"rate_tau_s": rate_tau_s, **options}
+    return conf.model, {**taken, **options}
 
 
 if __name__ == "__main__":
