@@ -138,3 +138,11 @@ def test_a_flickering_mask_leaves_no_blocks_of_a_few_samples():
     assert rms == pytest.approx(0.1 / np.sqrt(60.0), rel=0.1)  # the whole blocks of the second half only
     means = dataset.residual_block_means(time_s[inside], noise[inside], 60.0)
     assert len(means) == 300
+
+
+def test_a_record_in_bursts_keeps_a_block_per_burst():
+    """Bursts of 1 s at 50 Hz every 30 s (a logger that wakes): a full block is what the bursts hold."""
+    time_s = (np.arange(100)[:, None] * 30.0 + np.arange(50)[None] / 50.0).ravel()
+    residual = np.ones((len(time_s), 3))
+    assert len(dataset.residual_block_means(time_s, residual, 60.0)) == 100
+    np.testing.assert_allclose(dataset.block_rmse(time_s, residual, 60.0), 1.0)
