@@ -48,13 +48,14 @@ def test_a_handled_block_is_found_from_the_accelerometer_or_the_gyro():
 def test_a_px4_yaml_brings_its_own_data_settings_and_a_bare_one_train_pys_dt_dt():
     from omegaconf import OmegaConf
 
-    tau_s = float(OmegaConf.load(campaign_table.DATA_CONF).rate_tau_s)  # as train.py composes conf/data
+    data = OmegaConf.load(campaign_table.DATA_CONF)  # as train.py composes conf/data
+    taken = {"rate_tau_s": float(data.rate_tau_s), "val_startup_s": float(data.val_startup_s)}
     spec, options = campaign_table._model_yaml("px4")
     assert spec._target_ == "gyronet.model.px4.Px4Cubic"
-    assert options == {"rate_tau_s": tau_s, "features": [{"kind": "temp"}], "block_s": 1e-6, "run_offsets": False,
+    assert options == {**taken, "features": [{"kind": "temp"}], "block_s": 1e-6, "run_offsets": False,
                        "in_sample": True}
     spec, options = campaign_table._model_yaml("poly3")
-    assert "_target_" in spec and options == {"rate_tau_s": tau_s}
+    assert "_target_" in spec and options == taken
     with pytest.raises(GyronetError, match="no conf/model/cubic.yaml"):
         campaign_table._model_yaml("cubic")
 

@@ -133,7 +133,7 @@ def test_train_script_on_two_runs_writes_every_run_and_every_fold(tmp_path, pape
     assert len(meta["data_sha256"]) == 64 and set(meta["run_offsets_dps"]) == {"paper", "cycle"}
     # the error bar: floor from both folds, and each run's blocks scored on a floor from the other alone
     calibration = meta["error_bar"]["calibration"]
-    assert calibration["held_out"] == ["paper", "cycle"] and calibration["startup_s"] == 0
+    assert calibration["held_out"] == ["paper", "cycle"] and calibration["startup_s"] == 600  # conf/data's default
     shares = [calibration["cross_within_1_sigma"], *calibration["cross_within_1_sigma_by_run"].values()]
     assert len(shares) == 3 and all(len(s) == 3 and all(0 <= w <= 1 for w in s) for s in shares)
     assert "error bar cross-check" in proc.stdout and "this one recording" not in proc.stdout
