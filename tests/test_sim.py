@@ -515,6 +515,20 @@ def test_run_bump_is_new_each_run_and_sits_in_the_runs_temperatures():
         simulate("constant", 1.0, duration_s=60, sensor={"run_bump_dps": -1.0})
 
 
+def test_run_settle_is_new_each_run_and_gone_within_hours():
+    kwargs = dict(fs_hz=0.1, sensor_seed=3, duration_s=8 * 3600, sensor={"run_settle_dps": [0.05, 0.0, 0.02]})
+    runs = [simulate("random", seed=s, **kwargs) for s in range(30)]
+    settles = np.array([gyro(r, "truth", "run_settle") for r in runs])
+    assert np.allclose(settles[:, :, 1], 0.0)
+    assert np.std(settles[:, 0, [0, 2]], axis=0) == pytest.approx([0.05, 0.02], rel=0.4)  # at power-up
+    assert np.all(np.abs(settles[:, -1]) <= 1e-3 * np.abs(settles[:, 0]) + 1e-15)  # 8 h is 12 tau or more
+    assert len(np.unique(np.sign(settles[:, 0, 0]))) == 2  # either sign, run by run, as the real tag's y
+    plain = simulate("random", seed=4, **{**kwargs, "sensor": {}})
+    assert np.allclose(gyro(runs[4], "truth", "drift"), gyro(plain, "truth", "drift") + settles[4], atol=1e-12)
+    with pytest.raises(GyronetError, match="run_settle_dps must be >= 0"):
+        simulate("constant", 1.0, duration_s=60, sensor={"run_settle_dps": -1.0})
+
+
 @pytest.mark.parametrize("name, axis, sign", [("z_up", 2, 1), ("z_down", 2, -1), ("y_up", 1, 1),
                                               ("y_down", 1, -1), ("x_up", 0, 1), ("x_down", 0, -1)])
 def test_named_orientation_turns_gravity_and_the_earth_rate(name, axis, sign):

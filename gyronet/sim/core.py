@@ -16,7 +16,7 @@ from gyronet.sim.effects import apply_effect
 from gyronet.sim.noise import NoiseSpec, earth_rate_dps, gravity_g, gyro_noise_dps, quantise
 from gyronet.sim.profiles import chamber_profile
 from gyronet.sim.run import (decimate_columns, g_sensitivity_matrix, lose_rows, orientation_deg, run_bump_dps,
-                             turn_on_bias_dps)
+                             run_settle_dps, turn_on_bias_dps)
 from gyronet.sim.draw import draw_sensor
 from gyronet.sim.sensor import N_AXES, per_axis
 from gyronet.sim.specs import AccelSpec, EarthSpec, Simulation, TemperatureSpec, as_spec, rate_steps_dps
@@ -64,7 +64,7 @@ def simulate(profile: str = "paper", fs_hz: float = 10.0, seed: int = 0, sensor_
     sensor
         ``distribution`` (``default`` or ``survey``, :func:`gyronet.sim.sensor.draw_sensor`), overrides
         of the drawn sensor (``swing_dps`` or any :class:`SensorModel` field), and the run-level
-        ``turn_on_bias_dps``, ``g_sensitivity_dps_per_g`` and ``run_bump_dps`` of :mod:`gyronet.sim.run` (without
+        ``turn_on_bias_dps``, ``g_sensitivity_dps_per_g``, ``run_bump_dps`` and ``run_settle_dps`` of :mod:`gyronet.sim.run` (without
         ``turn_on_bias_dps``, a survey sensor's own ``turn_on_bias_std_dps``).
     rate_steps
         True rotation steps, see :func:`rate_steps_dps`.
@@ -90,6 +90,7 @@ def simulate(profile: str = "paper", fs_hz: float = 10.0, seed: int = 0, sensor_
     bias_std_dps = sensor.pop("turn_on_bias_dps", None)
     g_sensitivity = g_sensitivity_matrix(sensor_seed, sensor.pop("g_sensitivity_dps_per_g", 0.0))
     bump_std_dps = sensor.pop("run_bump_dps", 0.0)
+    settle_std_dps = sensor.pop("run_settle_dps", 0.0)
     model = draw_sensor(sensor_seed, **sensor)
     bias_seed = None if bias_std_dps is not None else sensor_seed
     if bias_std_dps is None:  # the sensor's own spread (zero but for the survey distribution), its own draw
@@ -124,6 +125,8 @@ def simulate(profile: str = "paper", fs_hz: float = 10.0, seed: int = 0, sensor_
         run_parts["g_sensitivity"] = np.broadcast_to(g_sensitivity @ gravity_g(turned_deg), (n, N_AXES))
     if np.any(per_axis(bump_std_dps, "sensor.run_bump_dps") != 0):
         run_parts["run_bump"] = run_bump_dps(seed, bump_std_dps, die_c, sensor_seed)
+    if np.any(per_axis(settle_std_dps, "sensor.run_settle_dps") != 0):
+        run_parts["run_settle"] = run_settle_dps(seed, settle_std_dps, time_s, sensor_seed)
     for part in run_parts.values():
         drift = drift + part
     earth_dps = earth_rate_dps(earth_spec.latitude_deg, turned_deg, earth_spec.rate_deg_hr)

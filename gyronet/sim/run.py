@@ -21,6 +21,11 @@ vity_dps_per_g``     with this standard deviation per entry (one number), or giv
                      centred where the run's temperatures are, drawn from the run's ``seed``): what
                      the real cats-tag x axis shows (a fall of about 0.17 deg/s at 5.5-8 degC in one
                      run only), and what a model fitted to one run adds to the next
+``run_settle_dps``   standard deviation (deg/s, one or three values) of a settling per axis after this
+                     run's power-up, ``amplitude * exp(-t / tau)``, tau uniform in 10-40 min, amplitude and
+                     tau drawn from the run's ``seed``: what the real cats-tag y axis shows (its
+                     residual moves by about +50 mdps over the first half hour of one run and -20 mdps
+                     in the other), and what biases an offset measured just after power-up
 ``decimate``         average every ``decimate`` samples into one (e.g. 20 Hz to 1 Hz with 20), every
                      recording and truth column alike, as the real data were resampled
 ``loss``             ``{fraction, bursts_per_h, burst_s}``: rows dropped from the written recording
@@ -28,12 +33,12 @@ vity_dps_per_g``     with this standard deviation per entry (one number), or giv
                      same rows from the truth
 ==================== =================================================================================
 
-The turn-on bias, the g-sensitivity term and the run's bump are part of the truth's ``drift_*`` (what a compensator
-must remove, so ``gyro = true_rate + drift + noise`` still holds), and are also written on their own
-as ``turn_on_bias_*_dps``, ``g_sensitivity_*_dps`` and ``run_bump_*_dps``: none repeats from run to run,
-so a model of temperature trained on other runs cannot predict them; a per-run offset
-(``startup.still_s``) removes the first two, nothing removes the bump.
-``drift - turn_on_bias - g_sensitivity - run_bump`` is what the runs of one sensor share.
+The turn-on bias, the g-sensitivity term, the run's bump and its settling are part of the truth's ``drift_*`` (what a
+compensator must remove, so ``gyro = true_rate + drift + noise`` still holds), and are also written on their own
+as ``turn_on_bias_*_dps``, ``g_sensitivity_*_dps``, ``run_bump_*_dps`` and ``run_settle_*_dps``: none repeats
+from run to run, so a model of temperature trained on other runs cannot predict them; a per-run offset
+(``startup.still_s``) removes the first two, nothing removes the bump, and the settling biases the offset itself.
+``drift - turn_on_bias - g_sensitivity - run_bump - run_settle`` is what the runs of one sensor share.
 """
 from __future__ import annotations
 
@@ -97,6 +102,21 @@ def run_bump_dps(seed: int, std_dps: Any, die_c: np.ndarray, sensor_seed: int = 
     amplitude, centre_c, width_c = std * rng.standard_normal(N_AXES), rng.uniform(low, high, N_AXES), \
         rng.uniform(1.0, 3.0, N_AXES)
     return amplitude * np.exp(-0.5 * ((np.asarray(die_c)[:, None] - centre_c) / width_c) ** 2)
+
+
+def run_settle_dps(seed: int, std_dps: Any, time_s: np.ndarray, sensor_seed: int = 0) -> np.ndarray:
+    """This run's settling after power-up, shape (n, 3), deg/s: per axis normal(0, ``std_dps``) * exp(-t / tau).
+
+    tau uniform in 600-2400 s per axis, t from the run's first sample; drawn from the pair (``seed``,
+    ``sensor_seed``) on a stream of its own.
+    """
+    std = per_axis(std_dps, "sensor.run_settle_dps")
+    if np.any(std < 0):
+        raise GyronetError(f"sensor.run_settle_dps must be >= 0, got {std_dps!r}")
+    rng = np.random.default_rng([int(seed), int(sensor_seed), 11])
+    amplitude, tau_s = std * rng.standard_normal(N_AXES), rng.uniform(600.0, 2400.0, N_AXES)
+    elapsed_s = np.asarray(time_s, dtype=float) - float(time_s[0])
+    return amplitude * np.exp(-elapsed_s[:, None] / tau_s)
 
 
 def g_sensitivity_matrix(sensor_seed: int, value: Any) -> np.ndarray:
