@@ -70,22 +70,6 @@ def test_held_out_runs_choose_each_axis_its_capacity():
     assert "model/level_x" not in metrics  # a fold reports; fit_by_run chooses over every fold
 
 
-def test_a_held_out_run_is_scored_as_deployed_with_a_start_up_offset():
-    """val_startup_s: the window's mean is the offset, so an error there moves every later block."""
-    time_s = np.arange(0.0, 7200.0, 1.0)
-    x = np.column_stack([np.full_like(time_s, 5.0), np.zeros_like(time_s), np.zeros_like(time_s)])
-    y = np.zeros((len(time_s), 3))
-    y[time_s < 600, 0] = 0.03  # the model misses 0.03 deg/s on x, in the start-up window only
-    model = lambda inputs: torch.zeros(len(inputs), 3, dtype=torch.float64)  # noqa: E731
-    data = SimpleNamespace(val_full=(time_s, x, y), held_out=1, temp_range_c=(0.0, 10.0), val_startup_s=0.0)
-    own = capacity.held_out_error(model, data)
-    data.val_startup_s = 600.0
-    deployed = capacity.held_out_error(model, data)
-    assert deployed[0] == pytest.approx(0.03, rel=1e-9)  # every block after the window is off by the offset
-    assert own[0] < 0.3 * deployed[0]  # with the run's own constant removed, the window is 1/12 of it
-    assert deployed[1] == deployed[2] == own[1] == 0.0
-
-
 @pytest.mark.slow
 def test_one_recording_is_refitted_on_every_block(tmp_path):
     """Sensor 4 on the paper profile: its x knee (-9.9 degC, 5 degC wide) lies in a validation span."""

@@ -7,10 +7,10 @@ run (events, hysteresis, handling) gets the first run's events added to the next
 keeps the smallest level whose held-out error is within ``TOLERANCE`` of the best level's:
 
 - several runs: leave-one-run-out, each held-out run scored inside the fold's trained
-  temperatures (what the final model is asked to do), as deployed with a start-up offset over its
-  first ``data.val_startup_s`` (a model wrong on the power-up ramp carries that into every later
-  sample), or with 0 its own constant removed (its turn-on bias, which no model can know); the
-  errors are averaged over the folds;
+  temperatures (what the final model is asked to do) with its own constant removed (its turn-on
+  bias, which no model can know); the errors are averaged over the folds. Not as deployed with
+  ``data.val_startup_s``: that score rests on each held-out run's first minutes, and choosing on it
+  was worse on held-out simulated runs (docs/results/real-data.md);
 - one recording: its held-out time blocks (``gyronet.training.dataset.DriftData``), as for early stopping.
 
 A lower level only zeroes rows of the network's output layers (refitted in closed form), so the
@@ -55,7 +55,7 @@ def fit_level(model: nn.Module, x: torch.Tensor, y: torch.Tensor, level: int, ax
 
 
 def held_out_error(model: nn.Module, data: Any) -> np.ndarray:
-    """Per-axis 60 s RMS of the held-out residual, deg/s; a held-out run's in the trained box, as deployed or demeaned."""
+    """Per-axis 60 s RMS of the held-out residual, deg/s; a held-out run's in the trained box, demeaned."""
     time_s, x, y = data.val_full
     with torch.no_grad():
         residual = y - model(torch.tensor(x, dtype=torch.float64)).numpy()
@@ -64,13 +64,9 @@ def held_out_error(model: nn.Module, data: Any) -> np.ndarray:
     low, high = data.temp_range_c
     temp = x[:, getattr(model, "temp_index", 0)]
     inside = (temp >= low) & (temp <= high)
-    startup_s = float(getattr(data, "val_startup_s", 0.0) or 0.0)
-    if startup_s > 0:  # as deployed: the start-up window's mean removed, scored after the window
-        window = time_s < time_s[0] + startup_s
-        time_s, residual, inside = time_s[~window], residual[~window] - residual[window].mean(0), inside[~window]
     if inside.sum() * np.median(np.diff(time_s)) >= MIN_IN_BOX_S:
         time_s, residual = time_s[inside], residual[inside]
-    return block_rmse(time_s, residual if startup_s > 0 else residual - residual.mean(0), 60.0)
+    return block_rmse(time_s, residual - residual.mean(0), 60.0)
 
 
 def level_errors(model: nn.Module, data: Any) -> np.ndarray:
