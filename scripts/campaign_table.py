@@ -27,7 +27,9 @@ def main(cfg: DictConfig) -> None:
             models[name] = None
             continue
         variant = dict(cfg.variants.get(name) or {"model": name})
+        data = OmegaConf.to_container(variant.pop("data", None) or OmegaConf.create({}))
         spec, data_options[name] = _model_yaml(variant.pop("model"))
+        data_options[name].update(data)  # a variant's own data settings, e.g. {val_startup_s: 0}
         spec = OmegaConf.merge(spec, variant)
         models[name] = lambda n_inputs, spec=spec, **more: instantiate(spec, n_inputs=n_inputs, **more)
     table = held_out_table(list(cfg.runs), models, float(cfg.startup_s), float(cfg.score_from_s), bool(cfg.run_offsets),
