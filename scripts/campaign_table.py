@@ -26,11 +26,7 @@ def main(cfg: DictConfig) -> None:
         if name == "raw":
             models[name] = None
             continue
-        variant = dict(cfg.variants.get(name) or {"model": name})
-        data = OmegaConf.to_container(variant.pop("data", None) or OmegaConf.create({}))
-        spec, data_options[name] = _model_yaml(variant.pop("model"))
-        data_options[name].update(data)  # a variant's own data settings, e.g. {val_startup_s: 0}
-        spec = OmegaConf.merge(spec, variant)
+        spec, data_options[name] = _variant(name, cfg.variants)
         models[name] = lambda n_inputs, spec=spec, **more: instantiate(spec, n_inputs=n_inputs, **more)
     table = held_out_table(list(cfg.runs), models, float(cfg.startup_s), float(cfg.score_from_s), bool(cfg.run_offsets),
                            OmegaConf.to_container(cfg.train), int(cfg.seed), data_options)
@@ -42,6 +38,14 @@ def main(cfg: DictConfig) -> None:
     with atomic_output(output.with_suffix(".json")) as tmp:
         tmp.write_text(json.dumps(table, indent=2) + "\n")
     log.info("held-out runs:\n%s", markdown)
+
+
+def _variant(name: str, variants: DictConfig) -> tuple[DictConfig, dict]:
+    """A model name's spec and data settings: ``conf/model/<name>.yaml``, or a variant's yaml, overrides and ``data``."""
+    variant = dict(variants.get(name) or {"model": name})
+    data = OmegaConf.to_container(variant.pop("data", None) or OmegaConf.create({}))
+    spec, options = _model_yaml(variant.pop("model"))
+    return OmegaConf.merge(spec, variant), {**options, **data}
 
 
 def _model_yaml(name: str) -> tuple[DictConfig, dict]:

@@ -60,6 +60,17 @@ def test_a_px4_yaml_brings_its_own_data_settings_and_a_bare_one_train_pys_dt_dt(
         campaign_table._model_yaml("cubic")
 
 
+def test_a_variant_brings_its_own_model_overrides_and_data_settings():
+    from omegaconf import OmegaConf
+
+    variants = OmegaConf.load(campaign_table.MODEL_CONF.parents[1] / "conf" / "campaign.yaml").variants
+    default_spec, default_options = campaign_table._model_yaml("default")
+    spec, options = campaign_table._variant("default_screened_within", variants)
+    assert spec == default_spec and options == {**default_options, "val_startup_s": 0}
+    spec, options = campaign_table._variant("hybrid", variants)
+    assert spec.select_capacity is False and options == default_options
+
+
 @needs_cats
 def test_the_real_runs_floors_and_the_cubic_held_out_as_the_study_found():
     spec, px4_options = campaign_table._model_yaml("px4")
