@@ -273,7 +273,6 @@ class DriftData(TrainingData):
         return x[accepted], y[accepted], accepted
 
 
-
 def block_rmse(time_s: np.ndarray, residual: np.ndarray, block_s: float = 60.0) -> np.ndarray:
     """RMS over ``block_s`` blocks of the block-averaged residual, per axis (the contract's metric)."""
     return np.sqrt(np.mean(residual_block_means(time_s, residual, block_s) ** 2, axis=0))
@@ -283,14 +282,13 @@ def residual_block_means(time_s: np.ndarray, residual: np.ndarray, block_s: floa
     """The ``block_s`` block means that ``block_rmse`` squares, (m, axes).
 
     Blocks are formed on contiguous runs: a time-block split leaves gaps, and a block never
-    straddles one. A block needs half the samples of a full one: where a mask (the trained
-    temperatures, say) flickers, its pieces of a few samples are no 60 s means.
+    straddles one. A block needs half the samples of a full one, the one the median sample lies in:
+    where a mask (the trained temperatures, say) flickers, its pieces of a few samples are no 60 s means.
     """
     gaps = np.flatnonzero(np.diff(time_s) > 1.5 * np.median(np.diff(time_s))) + 1
     spans = [(a, b) for a, b in zip([0, *gaps], [*gaps, len(time_s)]) if b - a > 1]
     if not spans:
         return np.empty((0, residual.shape[1]))
-    # a full block: the one the median sample lies in (a flickering mask's many pieces hold few samples)
     counts = [np.bincount(gap_blocks(time_s[a:b], block_s)) for a, b in spans]
     full = float(np.median(np.concatenate([np.repeat(c, c) for c in counts])))
     pieces = [block_means(residual[a:b], time_s[a:b], block_s, full_count=full) for a, b in spans]
