@@ -64,8 +64,8 @@ def simulate(profile: str = "paper", fs_hz: float = 10.0, seed: int = 0, sensor_
     sensor
         ``distribution`` (``default`` or ``survey``, :func:`gyronet.sim.sensor.draw_sensor`), overrides
         of the drawn sensor (``swing_dps`` or any :class:`SensorModel` field), and the run-level
-        ``turn_on_bias_dps``, ``g_sensitivity_dps_per_g``, ``run_bump_dps`` and ``run_settle_dps`` of :mod:`gyronet.sim.run` (without
-        ``turn_on_bias_dps``, a survey sensor's own ``turn_on_bias_std_dps``).
+        ``turn_on_bias_dps``, ``g_sensitivity_dps_per_g``, ``run_bump_dps`` and ``run_settle_dps`` of
+        :mod:`gyronet.sim.run` (without ``turn_on_bias_dps``, a survey sensor's own ``turn_on_bias_std_dps``).
     rate_steps
         True rotation steps, see :func:`rate_steps_dps`.
     effects

@@ -94,7 +94,7 @@ def screen_errors(data: Any, lags_s: Sequence[float], rate_only: bool = False) -
     errors = np.empty((len(columns), len(AXES)))
     for k, cols in enumerate(columns):
         basis = np.column_stack([runs, _basis(x[:, cols], centres, low, high)])
-        if by_run:  # each candidate at its best level, as the capacity choice will take it on these folds
+        if by_run:  # each candidate at its best capacity level: the network may keep any of them
             constants = list(range(runs.shape[1]))
             errors[k] = np.min([_score_by_run(time_s, x[:, slots[0]], _held_out(basis[:, constants + level], y, fold),
                                               run, data.val_startup_s)
