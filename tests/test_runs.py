@@ -201,19 +201,25 @@ CATS_RUNS = [CATS / "cats_run_z_down.csv.gz", CATS / "cats_run_y_down.csv.gz"]
 @pytest.mark.slow
 @pytest.mark.skipif(not all(p.is_file() for p in CATS_RUNS),
                     reason=f"the real cats-tag runs are not at {CATS} (../shared is not in the repository)")
-def test_real_runs_choose_less_than_full_capacity_and_beat_the_cubic_inside_the_box():
+def test_real_runs_choose_less_than_full_capacity_and_beat_the_cubic_inside_the_box(monkeypatch):
     """Two real runs of one tag: what the Gaussians learn from one run does not carry over to the other.
 
     The figures are the folds' own (each run held out, trained on the other, inside its box,
     its constant removed): the evidence the selection acts on, against the PX4 cubic's.
     """
-    from gyronet.training import capacity
+    from gyronet.training import capacity, error_bar_fit
 
+    gaussian_weights = []  # of each fold model whose held-out blocks calibrate the error bar
+    stats = error_bar_fit.held_out_stats
+    monkeypatch.setattr(error_bar_fit, "held_out_stats", lambda model, *args: gaussian_weights.append(
+        model.head.weight.detach().abs().sum(1).numpy()) or stats(model, *args))
     data = training_data(paths=[str(p) for p in CATS_RUNS], run_offsets=True)
     model = RBFNet(3, 3, 12, rbf_inputs=[0], linear=True, temp_degree=3, clamp=True, select_capacity=True)
     metrics, folds = fit_by_run(model, data, progress=False)
     levels = [int(metrics[f"model/level_{a}"]) for a in "xyz"]
     assert all(level < 3 for level in levels), levels
+    # the bar is calibrated on what is deployed: each fold refitted at the chosen levels, no Gaussians
+    assert len(gaussian_weights) == 2 and np.all(np.array(gaussian_weights) == 0), gaussian_weights
     chosen = capacity.from_metrics(folds)[levels, [0, 1, 2]]
     cubic = []
     for run in data.runs:

@@ -89,12 +89,17 @@ def choose(errors: np.ndarray, tolerance: float = TOLERANCE) -> list[int]:
     return [int(np.flatnonzero(errors[:, a] <= best[a] * (1 + tolerance))[0]) for a in range(errors.shape[1])]
 
 
-def apply(model: nn.Module, data: Any, levels: Sequence[int]) -> None:
+def refit(model: nn.Module, data: Any, levels: Sequence[int]) -> None:
     """Refit the axes whose chosen level is below full on ``data.train`` (the full axes keep their fit)."""
     x = torch.as_tensor(data.train.x, dtype=torch.float64)
     y = torch.as_tensor(data.train.y, dtype=torch.float64)
     for level in sorted(set(levels) - {len(LEVELS) - 1}):
         fit_level(model, x, y, level, [a for a, v in enumerate(levels) if v == level], getattr(data, "offsets", None))
+
+
+def apply(model: nn.Module, data: Any, levels: Sequence[int]) -> None:
+    """``refit`` the model that will be deployed, and say what each axis got."""
+    refit(model, data, levels)
     log.info("capacity per axis: %s", ", ".join(f"{a}={LEVELS[v]}" for a, v in zip(AXES, levels)))
 
 
@@ -113,4 +118,4 @@ def from_metrics(folds: Sequence[dict]) -> np.ndarray:
 
 
 __all__ = ["LEVELS", "TOLERANCE", "apply", "as_metrics", "choose", "fit_level", "from_metrics", "held_out_error",
-           "level_errors"]
+           "level_errors", "refit"]

@@ -154,15 +154,14 @@ def fit_by_run(model: nn.Module, data: RunsData, optim: Callable | None = None, 
     untrained = copy.deepcopy(model)
     from gyronet.training import error_bar_fit
 
-    folds, best_steps, fold_stats = [], [], []  # fold_stats: each held-out run's blocks, for the error bar
+    folds, best_steps, fold_fits = [], [], []  # fold_fits: each fold's model and data, for the error bar
     for run in data.runs:
         fold_data = data.holding_out(run.index)
         fold_model = copy.deepcopy(untrained)
         metrics = fit(fold_model, fold_data, optim, seed=seed, **fit_kwargs)
+        fold_fits.append((fold_model, fold_data))
         time_s, x, y = fold_data.val_full
         residual = y - predict(fold_model, x)
-        fold_stats.append(error_bar_fit.held_out_stats(fold_model, None, time_s, x, y, fold_data.train.x,
-                                                       fold_data.val_adjust))
         low, high = fold_data.temp_range_c
         temp = run.temp_c
         folds.append({"held_out": run.name, "path": run.path,
@@ -177,11 +176,7 @@ def fit_by_run(model: nn.Module, data: RunsData, optim: Callable | None = None, 
                  ", ".join(f"{a}={metrics[f'val/rmse_{a}_dps']:.4g}" for a in "xyz"))
     steps = int(np.median(best_steps)) if best_steps else None
     final = fit(model, data, optim, seed=seed, writer=writer, stop_at_step=steps, **fit_kwargs)
-    pooled, by_run = error_bar_fit.cross_check(fold_stats)
-    error_bar_fit.attach(model, error_bar_fit.merge_stats(fold_stats, {
-        "held_out": [r.name for r in data.runs], "startup_s": data.val_startup_s, "cross_within_1_sigma": pooled,
-        "cross_within_1_sigma_by_run": dict(zip((r.name for r in data.runs), by_run))}))
-    out = {"train/loss": final["train/loss"], **{f"val/cross_within_1_sigma_{a}": v for a, v in zip("xyz", pooled)}}
+    out = {"train/loss": final["train/loss"]}
     for key in [f"val/rmse_{a}_dps" for a in "xyz"] + ["val/rmse_dps"]:
         out[key] = float(np.mean([f[key] for f in folds]))
     if steps is not None:
@@ -192,7 +187,15 @@ def fit_by_run(model: nn.Module, data: RunsData, optim: Callable | None = None, 
         errors = capacity.from_metrics(folds)
         levels = capacity.choose(errors)
         capacity.apply(model, data, levels)
+        for fold_model, fold_data in fold_fits:  # the bar is calibrated on what is deployed: the chosen levels
+            capacity.refit(fold_model, fold_data, levels)
         out.update(capacity.as_metrics(errors, levels))
+    fold_stats = [error_bar_fit.held_out_stats(m, None, *d.val_full, d.train.x, d.val_adjust) for m, d in fold_fits]
+    pooled, by_run = error_bar_fit.cross_check(fold_stats)
+    error_bar_fit.attach(model, error_bar_fit.merge_stats(fold_stats, {
+        "held_out": [r.name for r in data.runs], "startup_s": data.val_startup_s, "cross_within_1_sigma": pooled,
+        "cross_within_1_sigma_by_run": dict(zip((r.name for r in data.runs), by_run))}))
+    out.update({f"val/cross_within_1_sigma_{a}": v for a, v in zip("xyz", pooled)})
     log.info("leave-one-run-out over %d runs: mean held-out 60 s RMSE %.4g deg/s; final fit on every run%s",
              data.n_runs, out["val/rmse_dps"], f" for {steps} steps" if steps else "")
     return out, folds
