@@ -228,7 +228,8 @@ def with_axis_lags(data: Any, make_model: Callable[..., torch.nn.Module], model:
         return f"{AXES[a]} {lag:g} s ({full} lower held-out error; {rate} with only dT/dt lagged)"
 
     gains = ", ".join(said(a, lag, rate_only) if lag else f"{AXES[a]} none" for a, (lag, rate_only) in enumerate(inputs))
-    log.info("axis lags (screened: none, %s s): %s", ", ".join(f"{t:g}" for t in lags_s), gains)
+    how = f"by run, as deployed after {data.val_startup_s:g} s" if _deployed(data) else "within the records"
+    log.info("axis lags (screened %s: none, %s s): %s", how, ", ".join(f"{t:g}" for t in lags_s), gains)
     distinct = sorted({lag for lag in chosen if lag})
     if not distinct:
         return data, model
