@@ -15,8 +15,8 @@ rate rather than a thermal lag, and gets only those columns lagged.
 
 Several runs (``data.paths``) are screened together, with a constant per run beside the form (each
 run's turn-on bias), their 2 min chunks held out in turn; deployed with a start-up offset
-(``data.val_startup_s``), each run is held out whole instead and scored as that offset leaves it,
-since the offset is measured where the features are at their least settled (a ramp just after
+(``data.val_startup_s``), each run is held out whole instead, each lag at its best capacity level,
+and scored as that offset leaves it, since the offset is measured where the features are at their least settled (a ramp just after
 power-up), and a lag that fits within runs can cost every later sample of the next.
 """
 from __future__ import annotations
