@@ -15,6 +15,10 @@ from gyronet.sim import simulate, write_simulation  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 SHARED = ROOT.parent / "shared"
+CATS = SHARED / "data" / "real" / "cats-tag"  # the real tag's two shared runs (never copied into the repository)
+CATS_RUNS = [CATS / "cats_run_z_down.csv.gz", CATS / "cats_run_y_down.csv.gz"]
+needs_cats = pytest.mark.skipif(not all(p.is_file() for p in CATS_RUNS),
+                                reason=f"the real cats-tag runs are not at {CATS} (../shared is not in the repository)")
 FAST_FS_HZ = 2.0  # the drift is slow; 2 Hz keeps tests quick while the noise stays white
 
 # property-based tests: a small example budget in the default run, a larger one under -m slow

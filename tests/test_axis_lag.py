@@ -1,6 +1,4 @@
 """A thermal lag per axis (gyronet.training.axis_lag): lagged features, the network reading them per axis, the screen."""
-from pathlib import Path
-
 import numpy as np
 import pytest
 import torch
@@ -11,9 +9,9 @@ from gyronet.model.small_model import row_model
 from gyronet.sim.sensor import first_order_lag
 from gyronet.training.axis_lag import choose_inputs, choose_lags, lagged_specs, screen_errors, with_axis_lags
 
+from conftest import CATS_RUNS, needs_cats
+
 SPECS = [*PAPER_FEATURES, *lagged_specs(20.0, 5.0)]
-CATS = Path(__file__).resolve().parents[2] / "shared" / "data" / "real" / "cats-tag"
-CATS_RUNS = [str(CATS / "cats_run_z_down.csv.gz"), str(CATS / "cats_run_y_down.csv.gz")]
 
 
 def _temperature(n: int = 30000, fs_hz: float = 10.0):
@@ -203,14 +201,15 @@ def test_a_campaign_deployed_with_a_start_up_offset_is_screened_run_by_run(lagge
     assert chosen[0] == 0.0 and chosen[2] == 0.0 and chosen[1] in (20.0, 30.0), (chosen, deployed)
 
 
+@needs_cats
 def test_the_real_tags_y_lag_does_not_survive_the_start_up_window():
     """Within its runs the tag's y prefers dT/dt a minute late; held out as deployed, the lag costs it."""
     from gyronet.training.runs import training_data
 
     lags = [5.0, 10.0, 20.0, 30.0, 60.0]
-    within = choose_inputs(screen_errors(training_data(paths=CATS_RUNS, run_offsets=True), lags, rate_only=True), lags)
-    deployed = screen_errors(training_data(paths=CATS_RUNS, run_offsets=True, val_startup_s=600.0), lags,
-                             rate_only=True)
+    paths = [str(p) for p in CATS_RUNS]
+    within = choose_inputs(screen_errors(training_data(paths=paths, run_offsets=True), lags, rate_only=True), lags)
+    deployed = screen_errors(training_data(paths=paths, run_offsets=True, val_startup_s=600.0), lags, rate_only=True)
     assert within[1][0] == 60.0, within
     assert choose_inputs(deployed, lags)[1] == (0.0, False), deployed[:, 1]
     assert deployed[0, 1] < 0.95 * deployed[1:, 1].min()  # every lag of y is worse on the next run, by 5 % or more

@@ -15,10 +15,7 @@ from gyronet.errors import GyronetError
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts"))
 import campaign_table  # noqa: E402
 
-CATS = Path(__file__).resolve().parents[2] / "shared" / "data" / "real" / "cats-tag"
-RUNS = [CATS / "cats_run_z_down.csv.gz", CATS / "cats_run_y_down.csv.gz"]
-needs_cats = pytest.mark.skipif(not all(p.is_file() for p in RUNS),
-                                reason=f"the real cats-tag runs are not at {CATS} (../shared is not in the repository)")
+from conftest import CATS_RUNS as RUNS, needs_cats  # noqa: E402
 
 
 def _still(n=7200, seed=0):

@@ -17,7 +17,7 @@ from gyronet.training.run_offsets import RunOffsets
 from gyronet.training.runs import RunsData, fit_by_run, load_runs, training_data
 from gyronet.training.train import fit
 
-from conftest import ROOT
+from conftest import CATS_RUNS, ROOT, needs_cats
 
 
 def _two_runs_data(**kw):
@@ -194,13 +194,8 @@ def test_the_held_out_run_can_be_scored_as_deployed_with_a_startup_offset(paper_
     np.testing.assert_allclose(adjusted[time_s >= time_s[0] + 600], 0.05)
 
 
-CATS = ROOT.parent / "shared" / "data" / "real" / "cats-tag"
-CATS_RUNS = [CATS / "cats_run_z_down.csv.gz", CATS / "cats_run_y_down.csv.gz"]
-
-
 @pytest.mark.slow
-@pytest.mark.skipif(not all(p.is_file() for p in CATS_RUNS),
-                    reason=f"the real cats-tag runs are not at {CATS} (../shared is not in the repository)")
+@needs_cats
 def test_real_runs_choose_less_than_full_capacity_and_beat_the_cubic_inside_the_box(monkeypatch):
     """Two real runs of one tag: what the Gaussians learn from one run does not carry over to the other.
 
