@@ -16,8 +16,9 @@ rate rather than a thermal lag, and gets only those columns lagged.
 Several runs (``data.paths``) are screened together, with a constant per run beside the form (each
 run's turn-on bias), their 2 min chunks held out in turn; deployed with a start-up offset
 (``data.val_startup_s``), each run is held out whole instead, each lag at its best capacity level,
-and scored as that offset leaves it, since the offset is measured where the features are at their least settled (a ramp just after
-power-up), and a lag that fits within runs can cost every later sample of the next.
+and scored as that offset leaves it, since the offset is measured where the features are at their
+least settled (a ramp just after power-up), and a lag that fits within runs can cost every later
+sample of the next.
 """
 from __future__ import annotations
 
@@ -31,7 +32,7 @@ import torch
 from gyronet.recordings.data import AXES
 from gyronet.training.dataset import DriftData, residual_block_means
 from gyronet.training.run_data import load_runs, stack_runs
-from gyronet.training.runs import RunsData
+from gyronet.training.runs import RunsData, minus_startup_offset
 
 log = logging.getLogger(__name__)
 
@@ -141,9 +142,8 @@ def _score_by_run(time_s: np.ndarray, temp_c: np.ndarray, residual: np.ndarray, 
     for held in np.unique(run):
         mine, others = run == held, run != held
         t, res, temp = time_s[mine], residual[mine], temp_c[mine]
-        window = t < t[0] + startup_s
-        keep = ~window & (temp >= temp_c[others].min()) & (temp <= temp_c[others].max())
-        means.append(residual_block_means(t[keep], res[keep] - res[window].mean(0), BLOCK_S))
+        keep = (t >= t[0] + startup_s) & (temp >= temp_c[others].min()) & (temp <= temp_c[others].max())
+        means.append(residual_block_means(t[keep], minus_startup_offset(t, res, startup_s)[keep], BLOCK_S))
     return np.sqrt(np.mean(np.concatenate(means) ** 2, axis=0))
 
 

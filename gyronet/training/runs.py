@@ -82,8 +82,7 @@ class RunsData(TrainingData):
         """The held-out residual as a start-up offset over the first ``val_startup_s`` s would leave it."""
         if self.held_out is None or self.val_startup_s <= 0:
             return residual
-        window = time_s < time_s[0] + self.val_startup_s
-        return residual - residual[window].mean(0) if window.any() else residual
+        return minus_startup_offset(time_s, residual, self.val_startup_s)
 
     @property
     def n_runs(self) -> int:
@@ -99,6 +98,12 @@ class RunsData(TrainingData):
             values = self.offsets.values().detach().numpy()
             meta["run_offsets_dps"] = {r.name: v.tolist() for r, v in zip(self.train_runs, values)}
         return meta
+
+
+def minus_startup_offset(time_s: np.ndarray, residual: np.ndarray, startup_s: float) -> np.ndarray:
+    """``residual`` minus its mean over the first ``startup_s`` s: what ``startup.still_s`` leaves of it."""
+    window = time_s < time_s[0] + startup_s
+    return residual - residual[window].mean(0) if window.any() else residual
 
 
 def training_data(path: str | None = None, paths: Sequence[str] | None = None, run_offsets: bool = False,
@@ -201,4 +206,5 @@ def fit_by_run(model: nn.Module, data: RunsData, optim: Callable | None = None, 
     return out, folds
 
 
-__all__ = ["Run", "RunBlocks", "RunOffsets", "RunsData", "fit_by_run", "load_runs", "run_name", "training_data"]
+__all__ = ["Run", "RunBlocks", "RunOffsets", "RunsData", "fit_by_run", "load_runs", "minus_startup_offset", "run_name",
+           "training_data"]
