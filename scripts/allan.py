@@ -1,7 +1,8 @@
 """Allan analysis of a recording or a ROS bag: python scripts/allan.py input=F.csv|B.bag|BAG_FOLDER output=A.json.
 
 Writes A.json (CONTRACT.md section 3: per axis ``taus_s``, ``adev_dps``, N, B, K; for a compensated file with
-``drift_sigma_*_dps`` columns also the error bar's median, 95 % and maximum) and A.png. A bag
+``drift_sigma_*_dps`` columns also the error bar's median, 95 % and maximum, and whether to recalibrate:
+``gyronet.training.recalibration``, on a still record from ``still_s`` on) and A.png. A bag
 is read in memory (its sensor_msgs/Imu topic, ``rosbag.imu_topic``); it needs no temperature.
 """
 import logging
@@ -12,6 +13,7 @@ import numpy as np
 from omegaconf import DictConfig, OmegaConf
 
 from gyronet.allan import allan_report, format_table, plot_allan, report_to_json
+from gyronet.training import recalibration
 from gyronet.recordings.data import ALLAN_COLUMNS, load_recording
 from gyronet.errors import GyronetError
 from gyronet.recordings.importers.rosbag import is_rosbag, read_rates
@@ -24,7 +26,7 @@ from _cli import command  # noqa: E402
 log = logging.getLogger(__name__)
 
 
-@command("allan", schemas={"per_decade": int})
+@command("allan", schemas={"per_decade": int, "still_s": float})
 def main(cfg: DictConfig) -> None:
     if OmegaConf.is_missing(cfg, "input"):
         raise GyronetError("no recording given: add input=F.csv")
@@ -39,6 +41,12 @@ def main(cfg: DictConfig) -> None:
             report[axis].update(values)
             log.info("%s: drift sigma median %.4g deg/s (95 %% %.4g, max %.4g)", axis, values["drift_sigma_median_dps"],
                      values["drift_sigma_p95_dps"], values["drift_sigma_max_dps"])
+        outside = recording.columns.get("out_of_range")
+        verdicts = recalibration.check(recording.time_s, recording.gyro_dps, sigma,
+                                       None if outside is None else np.asarray(outside) > 0, float(cfg.still_s))
+        for axis, verdict in verdicts.items():  # a still record: does the bar still describe the sensor?
+            report[axis]["recalibration"] = verdict
+            (log.warning if verdict["recalibrate"] else log.info)(recalibration.summary_line(axis, verdict))
     output = Path(cfg.output)
     output.parent.mkdir(parents=True, exist_ok=True)
     output.write_text(report_to_json(report), encoding="utf-8")

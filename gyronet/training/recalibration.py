@@ -1,0 +1,80 @@
+"""When to recalibrate: a compensated still record held against its own error bar.
+
+On a still sensor, once its start-up offset is applied, a 60 s mean of the compensated rate is the
+drift the bundle left plus the white noise of a 60 s mean; divided by its bar (the block's mean
+``drift_sigma`` with that noise added) it is about 1 in RMS while the bar describes the sensor. An
+axis asks for a new calibration when that RMS exceeds ``HOUR_RMS_LIMIT`` over some hour: its error
+is more than twice what the bundle claims, because the sensor has aged or its history has left
+what the training saw.
+
+The limit is set by measurement (docs/guides/error-bars.md#when-to-recalibrate): on held-out
+simulated histories whose bar is calibrated, the worst hour was 1.05-1.49 (18 axes); where the bar
+was wrong, 2.45-9.25 (the real tag's next run on a one-run bar, 6 axes) and 3.20 (x on a history
+beyond the trained temperatures). Counting blocks beyond 2 sigma instead (three in a row, or one in
+ten over an hour) flagged 13 of the 18 calibrated axes: a drift error wanders slowly, so its blocks
+leave the bar together.
+"""
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from gyronet.model.error_bar import BLOCK_S
+from gyronet.recordings.data import AXES
+from gyronet.training.dataset import residual_block_means
+from gyronet.training.error_bar_fit import white_noise_var
+
+HOUR_S = 3600.0
+HOUR_RMS_LIMIT = 2.0  # an hour's RMS of (block mean / its bar) above this: recalibrate
+
+
+def check(time_s: np.ndarray, rate_dps: np.ndarray, sigma_dps: np.ndarray, outside: np.ndarray | None = None,
+          still_s: float = 0.0, block_s: float = BLOCK_S) -> dict[str, dict[str, Any]]:
+    """Per axis: the share of blocks within 1 and 2 sigma, the worst hour's RMS ratio, and the verdict.
+
+    ``time_s, rate_dps, sigma_dps``: a compensated still record (true rate zero once its start-up
+    offset is applied, from ``still_s`` s on) and its ``drift_sigma`` columns; ``outside``: its
+    ``out_of_range`` flags. A record shorter than an hour is judged as a whole. Times in the result
+    are seconds from the record's first sample; empty when fewer than two blocks remain.
+    """
+    time_s = np.asarray(time_s, dtype=np.float64)
+    sigma_dps = np.asarray(sigma_dps, dtype=np.float64)
+    keep = (time_s - time_s[0] >= still_s) & np.all(np.isfinite(sigma_dps), axis=1)
+    since_s, rate = time_s[keep] - time_s[0], np.asarray(rate_dps, dtype=np.float64)[keep]
+    flags = np.zeros(len(since_s)) if outside is None else np.asarray(outside, dtype=np.float64)[keep]
+    blocks = residual_block_means(since_s, np.column_stack([since_s, rate, sigma_dps[keep], flags]), block_s) \
+        if len(since_s) > 2 else np.empty((0, 8))
+    if len(blocks) < 2:
+        return {}
+    start_s = blocks[:, 0] - 0.5 * block_s
+    ratio = np.abs(blocks[:, 1:4]) / np.sqrt(blocks[:, 4:7] ** 2 + white_noise_var(since_s, rate, block_s))
+    window_s = min(HOUR_S, start_s[-1] + block_s - start_s[0])
+    last = np.searchsorted(start_s, start_s[-1] + block_s - window_s, side="right")  # windows that fit the record
+    end = np.searchsorted(start_s, start_s[:last] + window_s)
+    n = end - np.arange(last)
+    out: dict[str, dict[str, Any]] = {}
+    for a, axis in enumerate(AXES):
+        sums = np.concatenate([[0.0], np.cumsum(ratio[:, a] ** 2)])
+        hour_rms = np.sqrt((sums[end] - sums[:last]) / n)
+        worst = int(np.argmax(hour_rms))
+        out[axis] = {"n_blocks": int(len(ratio)), "within_1_sigma": float(np.mean(ratio[:, a] <= 1.0)),
+                     "within_2_sigma": float(np.mean(ratio[:, a] <= 2.0)),
+                     "worst_hour_rms_ratio": float(hour_rms[worst]), "worst_hour_start_s": float(start_s[worst]),
+                     "window_s": float(window_s), "blocks_out_of_range": int(np.sum(blocks[:, 7] > 0)),
+                     "recalibrate": bool(hour_rms[worst] > HOUR_RMS_LIMIT)}
+    return out
+
+
+def summary_line(axis: str, result: dict[str, Any]) -> str:
+    """One line for a person: the verdict, the worst hour, and the shares within 1 and 2 sigma."""
+    verdict = "recalibrate" if result["recalibrate"] else "within its error bar"
+    outside = f"; {result['blocks_out_of_range']} blocks outside the trained temperatures" \
+        if result["blocks_out_of_range"] else ""
+    return (f"{axis}: {verdict}: over the {result['window_s'] / 60:.0f} min from {result['worst_hour_start_s']:.0f} s its "
+            f"60 s means are {result['worst_hour_rms_ratio']:.2f}x the bar in RMS (limit {HOUR_RMS_LIMIT:g}); "
+            f"{result['within_1_sigma']:.0%} of {result['n_blocks']} blocks within 1 sigma, "
+            f"{result['within_2_sigma']:.0%} within 2 (about 68 and 95 % where the bar holds){outside}")
+
+
+__all__ = ["HOUR_RMS_LIMIT", "check", "summary_line"]

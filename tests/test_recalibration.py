@@ -1,0 +1,79 @@
+"""When to recalibrate (gyronet.training.recalibration): a still record against its own error bar; allan.py reports it."""
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from gyronet.bundle.offline import SIGMA_COLUMNS, write_compensated
+from gyronet.training.recalibration import HOUR_RMS_LIMIT, check, summary_line
+
+ROOT = Path(__file__).resolve().parents[1]
+DRIFT_DPS = 0.005  # the drift error's standard deviation on a 60 s mean, and the bar that describes it
+
+
+def _still(hours: float = 6.0, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """A 1 Hz still record's compensated rate: a drift error that wanders (AR(1) over 60 s blocks, std
+    ``DRIFT_DPS``) plus white noise of 1.3 mdps on a 60 s mean."""
+    rng = np.random.default_rng(seed)
+    n_blocks = int(hours * 60)
+    drift = np.zeros((n_blocks, 3))
+    drift[0] = rng.normal(0.0, DRIFT_DPS, 3)
+    for b in range(1, n_blocks):
+        drift[b] = 0.5 * drift[b - 1] + rng.normal(0.0, DRIFT_DPS * np.sqrt(1 - 0.25), 3)
+    time_s = np.arange(60.0 * n_blocks)
+    return time_s, np.repeat(drift, 60, axis=0) + rng.normal(0.0, 0.01, (len(time_s), 3))
+
+
+def test_a_bar_that_describes_the_error_holds_and_one_three_times_too_narrow_asks_for_recalibration():
+    time_s, rate = _still()
+    holds = check(time_s, rate, np.full_like(rate, DRIFT_DPS))
+    narrow = check(time_s, rate, np.full_like(rate, DRIFT_DPS / 3))
+    for axis in "xyz":
+        assert not holds[axis]["recalibrate"] and holds[axis]["worst_hour_rms_ratio"] < HOUR_RMS_LIMIT
+        assert 0.55 < holds[axis]["within_1_sigma"] < 0.8 and holds[axis]["within_2_sigma"] > 0.9
+        assert narrow[axis]["recalibrate"] and narrow[axis]["worst_hour_rms_ratio"] > 2.5
+    assert holds["x"]["n_blocks"] == 360 and holds["x"]["window_s"] == 3600.0
+    assert summary_line("x", holds["x"]).startswith("x: within its error bar")
+    assert summary_line("y", narrow["y"]).startswith("y: recalibrate: over the 60 min from")
+
+
+def test_one_bad_hour_is_found_and_the_startup_window_is_skipped():
+    time_s, rate = _still()
+    hour = (time_s >= 3 * 3600) & (time_s < 4 * 3600)
+    rate[hour, 1] += 0.02  # y leaves its bar for an hour
+    rate[time_s < 600] += 1.0  # the start-up window, before its offset is applied
+    result = check(time_s, rate, np.full_like(rate, DRIFT_DPS), still_s=600.0)
+    assert result["y"]["recalibrate"] and abs(result["y"]["worst_hour_start_s"] - 3 * 3600) <= 120
+    assert not result["x"]["recalibrate"] and not result["z"]["recalibrate"]
+    assert check(time_s, rate, np.full_like(rate, DRIFT_DPS))["x"]["recalibrate"]  # the window counted
+
+
+def test_a_short_record_is_judged_whole_and_rows_without_a_bar_are_left_out():
+    time_s, rate = _still(hours=0.5)
+    sigma = np.full_like(rate, DRIFT_DPS)
+    sigma[:300] = np.nan  # an old bundle's rows, or a start-up window's
+    result = check(time_s, rate, sigma)
+    assert result["z"]["window_s"] == 1500.0 and result["z"]["n_blocks"] == 25
+    assert check(time_s[:100], rate[:100], sigma[:100]) == {}
+
+
+def test_allan_script_reports_the_verdict_of_a_compensated_still_file(tmp_path):
+    time_s, rate = _still(hours=3.0)
+    columns = {"time_s": time_s, **{f"gyro_{a}_dps": rate[:, i] for i, a in enumerate("xyz")},
+               "temp_c": np.full(len(time_s), 20.0), "out_of_range": np.zeros(len(time_s), np.int8),
+               "bad_input": np.zeros(len(time_s), np.int8)}
+    for i, name in enumerate(SIGMA_COLUMNS):
+        columns[name] = np.full(len(time_s), DRIFT_DPS / (3.0 if i == 2 else 1.0))  # z's bar 3x too narrow
+    write_compensated(tmp_path / "still.csv", columns, tmp_path)
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")])}
+    proc = subprocess.run([sys.executable, str(ROOT / "scripts" / "allan.py"), "input=still.csv", "output=a.json",
+                           "still_s=600", f"hydra.run.dir={tmp_path / 'hydra'}"], cwd=tmp_path, env=env,
+                          capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    report = json.loads((tmp_path / "a.json").read_text())
+    assert [report[a]["recalibration"]["recalibrate"] for a in "xyz"] == [False, False, True]
+    assert report["x"]["recalibration"]["n_blocks"] == 170  # from 600 s on
+    assert "z: recalibrate" in proc.stderr + proc.stdout and "Traceback" not in proc.stderr
