@@ -11,7 +11,9 @@ per 60 s block ``b`` and axis:
   the run's own first differences) is added: within when ``|e_b| <= sqrt(s_b^2 + n^2)``.
 
 Blocks with any sample outside the trained temperatures (``out_of_range``) are counted apart, with
-the median bar inside and outside (how much wider it gets). Goal: 60-76 % within 1 sigma.
+the median bar inside and outside (how much wider it gets). Goal: 60-76 % within 1 sigma. Each row
+also has ``allan.py``'s recalibration check (``gyronet.training.recalibration``; on a simulated
+record the true rate removed and its noise kept): a worst hour above 2x the bar asks for one.
 """
 from __future__ import annotations
 
@@ -27,6 +29,7 @@ from gyronet.model.error_bar import BLOCK_S
 from gyronet.recordings.data import AXES, load_recording, load_truth
 from gyronet.training.dataset import residual_block_means
 from gyronet.training.error_bar_fit import white_noise_var
+from gyronet.training.recalibration import check
 
 log = logging.getLogger(__name__)
 
@@ -119,7 +122,9 @@ def score_simulated(compensated_path: str | Path, recording_path: str | Path) ->
     noise = np.column_stack([truth[f"noise_{a}_dps"] for a in AXES])
     if len(true_rate) != len(time_s):
         raise ValueError(f"{compensated_path}: {len(time_s)} rows, its truth {len(true_rate)}")
-    return block_coverage(time_s, rate_dps - true_rate - noise, sigma, outside)
+    score = block_coverage(time_s, rate_dps - true_rate - noise, sigma, outside)
+    score["recalibration"] = check(time_s, rate_dps - true_rate, sigma, outside)  # as allan.py on a still record
+    return score
 
 
 def score_still(compensated_path: str | Path, still_s: float = 0.0) -> dict[str, Any]:
@@ -127,7 +132,9 @@ def score_still(compensated_path: str | Path, still_s: float = 0.0) -> dict[str,
     time_s, rate_dps, sigma, outside = _compensated(compensated_path)
     keep = time_s - time_s[0] >= still_s
     time_s, rate_dps, sigma, outside = time_s[keep], rate_dps[keep], sigma[keep], outside[keep]
-    return block_coverage(time_s, rate_dps, sigma, outside, white_noise_var(time_s, rate_dps))
+    score = block_coverage(time_s, rate_dps, sigma, outside, white_noise_var(time_s, rate_dps))
+    score["recalibration"] = check(time_s, rate_dps, sigma, outside)
+    return score
 
 
 def to_markdown(rows: Sequence[Mapping[str, Any]]) -> str:
@@ -138,16 +145,19 @@ def to_markdown(rows: Sequence[Mapping[str, Any]]) -> str:
     def mdps(values: Mapping[str, float]) -> str:
         return " / ".join("-" if not np.isfinite(values[a]) else f"{1000 * values[a]:.2f}" for a in AXES)
 
+    def hour(verdicts: Mapping[str, Any]) -> str:  # allan.py's recalibration check: above 2 asks for one
+        return " / ".join(f"{verdicts[a]['worst_hour_rms_ratio']:.2f}" if a in verdicts else "-" for a in AXES)
+
     lines = ["| trained on | held out | blocks | within 1 sigma, % x / y / z | within 2 sigma, % | "
              "inside the box: blocks, within 1 sigma % | outside: blocks, within 1 sigma % | "
-             "median sigma inside, mdps | outside, mdps | RMS error inside, mdps |",
-             "|---|---|---|---|---|---|---|---|---|---|"]
+             "median sigma inside, mdps | outside, mdps | RMS error inside, mdps | worst hour / bar, RMS |",
+             "|---|---|---|---|---|---|---|---|---|---|---|"]
     for row in rows:
         s, i, o = row["score"], row["score"]["inside"], row["score"]["outside"]
         lines.append(f"| {row['trained_on']} | {row['held_out']} | {s['n_blocks']} | {pct(s['within_1_sigma'])} | "
                      f"{pct(s['within_2_sigma'])} | {i['n_blocks']}: {pct(i['within_1_sigma'])} | "
                      f"{o['n_blocks']}: {pct(o['within_1_sigma'])} | {mdps(i['median_sigma_dps'])} | "
-                     f"{mdps(o['median_sigma_dps'])} | {mdps(i['rms_error_dps'])} |")
+                     f"{mdps(o['median_sigma_dps'])} | {mdps(i['rms_error_dps'])} | {hour(s.get('recalibration', {}))} |")
     pooled = pooled_share(rows)
     lines.append("")
     lines.append(f"Pooled over every row and axis: {100 * pooled['all']:.0f} % within 1 sigma "
