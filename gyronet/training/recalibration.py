@@ -47,10 +47,12 @@ def check(time_s: np.ndarray, rate_dps: np.ndarray, sigma_dps: np.ndarray, outsi
         if len(since_s) > 2 else np.empty((0, 8))
     if len(blocks) < 2:
         return {}
-    start_s = blocks[:, 0] - 0.5 * block_s
-    ratio = np.abs(blocks[:, 1:4]) / np.sqrt(blocks[:, 4:7] ** 2 + white_noise_var(since_s, rate, block_s))
-    window_s = min(HOUR_S, start_s[-1] + block_s - start_s[0])
-    last = np.searchsorted(start_s, start_s[-1] + block_s - window_s, side="right")  # windows that fit the record
+    start_s = np.maximum(blocks[:, 0] - 0.5 * block_s, since_s[0])  # from each block's mean time
+    bar = np.sqrt(blocks[:, 4:7] ** 2 + white_noise_var(since_s, rate, block_s))
+    ratio = np.abs(blocks[:, 1:4]) / np.maximum(bar, 1e-12)  # a bar of 0 (no noise, no floor) and no error: 0
+    end_s = since_s[-1] + float(np.median(np.diff(since_s)))  # the record's end
+    window_s = min(HOUR_S, end_s - since_s[0])
+    last = max(1, np.searchsorted(start_s, end_s - window_s, side="right"))  # the windows that fit the record
     end = np.searchsorted(start_s, start_s[:last] + window_s)
     n = end - np.arange(last)
     out: dict[str, dict[str, Any]] = {}
