@@ -160,9 +160,9 @@ def to_markdown(rows: Sequence[Mapping[str, Any]]) -> str:
                      f"{mdps(o['median_sigma_dps'])} | {mdps(i['rms_error_dps'])} | {hour(s.get('recalibration', {}))} |")
     pooled = pooled_share(rows)
     lines.append("")
+    kinds = ", ".join(f"{kind} {100 * pooled[kind]:.0f} %" for kind in ("simulated", "real") if np.isfinite(pooled[kind]))
     lines.append(f"Pooled over every row and axis: {100 * pooled['all']:.0f} % within 1 sigma "
-                 f"(simulated {100 * pooled['simulated']:.0f} %, real {100 * pooled['real']:.0f} %; goal "
-                 f"{100 * GOAL[0]:.0f}-{100 * GOAL[1]:.0f} %).")
+                 f"({kinds}; goal {100 * GOAL[0]:.0f}-{100 * GOAL[1]:.0f} %).")
     return "\n".join(lines) + "\n"
 
 
