@@ -44,6 +44,9 @@ def main(cfg: DictConfig) -> None:
         outside = recording.columns.get("out_of_range")
         verdicts = recalibration.check(recording.time_s, recording.gyro_dps, sigma,
                                        None if outside is None else np.asarray(outside) > 0, float(cfg.still_s))
+        if not verdicts:
+            log.info("no recalibration check: fewer than two 60 s blocks with a drift_sigma after still_s=%g s",
+                     float(cfg.still_s))
         for axis, verdict in verdicts.items():  # a still record: does the bar still describe the sensor?
             report[axis]["recalibration"] = verdict
             (log.warning if verdict["recalibrate"] else log.info)(recalibration.summary_line(axis, verdict))
