@@ -238,3 +238,14 @@ def test_a_still_run_is_scored_against_zero_with_its_noise_and_tabled(tmp_path):
     assert "| a | b | 110 |" in text and "real" in text
     out = write_table([row], tmp_path / "t.md", {"k": 1})
     assert json.loads(out.with_suffix(".json").read_text())["rows"][0]["score"]["n_blocks"] == 110
+
+
+def test_a_deployment_says_what_its_bar_rests_on(bundle, cycle_csv, tmp_path, caplog):
+    """One recording: the caveat of the real tag's next run; a campaign: its runs and their cross-check."""
+    with caplog.at_level(logging.INFO, logger="gyronet.bundle.offline"):
+        compensate_file(bundle, cycle_csv, tmp_path / "out.csv")
+    assert "held out of one recording" in caplog.text and "data.paths" in caplog.text
+    bar = _bar(_members())
+    bar.calibration = {"n_blocks": 2840, "held_out": ["a", "b"], "cross_within_1_sigma": [0.71, 0.5, 0.62]}
+    assert bar.trust_line() == ("drift_sigma: calibrated on 2840 60 s blocks of 2 runs, each held out in turn; each "
+                                "run's blocks within a bar fitted on the other runs: 71%/50%/62% (x/y/z; goal 60-76 %)")

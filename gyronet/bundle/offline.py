@@ -84,6 +84,8 @@ def compensate_file(bundle_dir: str | Path, input_path: str | Path, output_path:
     """
     compensator = Compensator.load(bundle_dir)
     compensator.use_startup(**dict(startup or {}))
+    if compensator.error_bar is not None:
+        log.info(compensator.error_bar.trust_line())
     recording = load_recording(input_path)
     out = compensate_as_deployed(compensator, recording, resample)
     write_compensated(output_path, output_columns(recording.time_s, recording.temp_c, out), bundle_dir)

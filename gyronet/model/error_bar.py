@@ -136,6 +136,18 @@ class ErrorBar:
                     var[a] += s * s
         return [math.sqrt(v) for v in var]
 
+    def trust_line(self) -> str:
+        """What the bar rests on, one line for a deployment's log: how far to trust ``drift_sigma``."""
+        calibration = self.calibration
+        blocks = f"{calibration.get('n_blocks', 0)} {BLOCK_S:g} s blocks"
+        runs, cross = calibration.get("held_out"), calibration.get("cross_within_1_sigma")
+        if runs:
+            checked = "" if not cross else ("; each run's blocks within a bar fitted on the other runs: " + "/".join(
+                f"{v:.0%}" for v in cross) + " (x/y/z; goal 60-76 %)")
+            return f"drift_sigma: calibrated on {blocks} of {len(runs)} runs, each held out in turn{checked}"
+        return (f"drift_sigma: calibrated on {blocks} held out of one recording; on a real sensor's next run the "
+                "error was 5-20x it (README \"Error bars\"): a campaign (data.paths) calibrates it across runs")
+
     # -- meta.json ----------------------------------------------------------------------------------
 
     def to_dict(self) -> dict[str, Any]:
