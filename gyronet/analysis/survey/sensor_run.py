@@ -151,7 +151,8 @@ def score_bundle(bundle: Path, check_csv: Path, startup_s: float, turn_on_differ
     compensator = Compensator.load(bundle)
     rates = {}
     compensator.use_startup(still_s=startup_s, static_rate_dps=static_rate_dps(recording).tolist())
-    rates["deployed"] = compensate_as_deployed(compensator, recording).rate_dps
+    deployed = compensate_as_deployed(compensator, recording)
+    rates["deployed"] = deployed.rate_dps
     compensator.use_startup(0.0)
     plain = compensate_as_deployed(compensator, recording)
     rates["as_is"] = plain.rate_dps
@@ -161,7 +162,25 @@ def score_bundle(bundle: Path, check_csv: Path, startup_s: float, turn_on_differ
         report = residual_report(recording.time_s[keep], rates[variant][keep], kept_truth)
         scores[variant] = [report["ratio_to_floor"][a] for a in AXES]
     scores["n_out_of_range"] = int(plain.out_of_range[keep].sum())
+    sigma = deployed.drift_sigma_dps[keep]
+    if np.isfinite(sigma).all():
+        scores["error_bar"] = error_bar_scores(recording.time_s[keep], rates["deployed"][keep], sigma, kept_truth)
     return scores
+
+
+def error_bar_scores(time_s: np.ndarray, rate_dps: np.ndarray, sigma_dps: np.ndarray,
+                     truth: Mapping[str, np.ndarray]) -> dict[str, list[float]]:
+    """The bar as deployed, per axis: the share of 60 s blocks whose drift error (rate - true rate - noise) is
+    within 1 sigma, and ``allan.py``'s recalibration check on the rate less the true rate (above 2 asks)."""
+    from gyronet.training.recalibration import check
+    from gyronet.training.sigma_table import block_coverage
+
+    true_rate = np.column_stack([truth[f"true_rate_{a}_dps"] for a in AXES])
+    noise = np.column_stack([truth[f"noise_{a}_dps"] for a in AXES])
+    coverage = block_coverage(time_s, rate_dps - true_rate - noise, sigma_dps, np.zeros(len(time_s), dtype=bool))
+    verdicts = check(time_s, rate_dps - true_rate, sigma_dps)
+    return {"within_1_sigma": [coverage["within_1_sigma"][a] for a in AXES],
+            "worst_hour_rms_ratio": [verdicts[a]["worst_hour_rms_ratio"] for a in AXES]}
 
 
 def describe_sensor(sensor: Mapping[str, Any]) -> dict[str, float]:

@@ -82,7 +82,24 @@ def summarize(results: Sequence[Mapping[str, Any]], ours: str, reference: str,
            "vs_reference": vs_reference["worst"] <= goals["vs_reference_max"]}
     return {"n_sensors": len(results), "failed": failed, "seeds": seeds, "ours": ours, "reference": reference, "rows": rows,
             "vs_reference": vs_reference, "goals": goals, "met": met, "misses": misses,
+            "error_bar": error_bar_summary(results, ours),
             "seconds_per_sensor": float(np.median([r["seconds"] for r in results]))}
+
+
+def error_bar_summary(results: Sequence[Mapping[str, Any]], method: str) -> dict[str, Any] | None:
+    """``method``'s error bar as deployed over the sensors: blocks within 1 sigma (pooled, and the spread over
+    sensor-axes) and the sensors whose recalibration check asks on some axis; None without error bars."""
+    bars = [r["methods"][method]["error_bar"] for r in results if "error_bar" in r["methods"][method]]
+    if not bars:
+        return None
+    within = np.array([b["within_1_sigma"] for b in bars])
+    hours = np.array([b["worst_hour_rms_ratio"] for b in bars])
+    seeds = [int(r["sensor_seed"]) for r in results if "error_bar" in r["methods"][method]]
+    return {"n_sensors": len(bars), "within_1_sigma_pooled": float(within.mean()),
+            "within_1_sigma_p10": float(np.percentile(within, 10)), "within_1_sigma_p90": float(np.percentile(within, 90)),
+            "in_goal_share": float(np.mean((within >= 0.60) & (within <= 0.76))),
+            "worst_hour_rms_ratio_max": float(hours.max()),
+            "recalibrate_sensors": [s for s, h in zip(seeds, hours) if h.max() > 2.0]}
 
 
 def to_markdown(summary: Mapping[str, Any], settings: Mapping[str, Any]) -> str:
@@ -108,6 +125,15 @@ def to_markdown(summary: Mapping[str, Any], settings: Mapping[str, Any]) -> str:
               f"({ours_row['p90']:.2f}); worst <= {goals['worst_max']:g}x: {mark(met['worst'])} "
               f"({ours_row['worst']:.2f}); every sensor at least {1 / goals['vs_reference_max']:.3g}x better than "
               f"{reference}: {mark(met['vs_reference'])} (worst ratio {vs['worst']:.3f}).", ""]
+    bar = summary.get("error_bar")
+    if bar:
+        asks = bar["recalibrate_sensors"]
+        lines += [f"{ours}'s error bar as deployed ({bar['n_sensors']} sensors): {100 * bar['within_1_sigma_pooled']:.0f} % of "
+                  f"60 s blocks within 1 sigma of the drift error, pooled (goal 60-76 %; sensor-axes "
+                  f"{100 * bar['within_1_sigma_p10']:.0f}-{100 * bar['within_1_sigma_p90']:.0f} % from the 10th to the 90th "
+                  f"percentile, {100 * bar['in_goal_share']:.0f} % of them in the goal); allan.py's recalibration check "
+                  f"asks on {len(asks)} sensor(s){' (' + ', '.join(map(str, asks)) + ')' if asks else ''}, worst hour "
+                  f"{bar['worst_hour_rms_ratio_max']:.2f}x the bar.", ""]
     misses = summary["misses"]
     lines.append("Sensors that miss a goal: " + ("none" if not misses else "; ".join(
         f"{seed} ({', '.join(what)})" for seed, what in sorted(misses.items(), key=lambda kv: int(kv[0])))) + ".")
