@@ -118,12 +118,19 @@ def score_simulated(compensated_path: str | Path, recording_path: str | Path) ->
     """Coverage of a compensated simulated recording against its truth (``recording_path``'s ``.truth.csv``)."""
     time_s, rate_dps, sigma, outside = _compensated(compensated_path)
     truth = load_truth(recording_path).columns
+    if len(truth["true_rate_x_dps"]) != len(time_s):
+        raise ValueError(f"{compensated_path}: {len(time_s)} rows, its truth {len(truth['true_rate_x_dps'])}")
+    return score_against_truth(time_s, rate_dps, sigma, outside, truth)
+
+
+def score_against_truth(time_s: np.ndarray, rate_dps: np.ndarray, sigma_dps: np.ndarray, outside: np.ndarray,
+                        truth: Mapping[str, np.ndarray]) -> dict[str, Any]:
+    """``block_coverage`` of the drift error (rate - true rate - the simulator's noise), with ``recalibration``:
+    the check ``allan.py`` makes on a still record, here on the rate less the true rate (the noise kept)."""
     true_rate = np.column_stack([truth[f"true_rate_{a}_dps"] for a in AXES])
     noise = np.column_stack([truth[f"noise_{a}_dps"] for a in AXES])
-    if len(true_rate) != len(time_s):
-        raise ValueError(f"{compensated_path}: {len(time_s)} rows, its truth {len(true_rate)}")
-    score = block_coverage(time_s, rate_dps - true_rate - noise, sigma, outside)
-    score["recalibration"] = check(time_s, rate_dps - true_rate, sigma, outside)  # as allan.py on a still record
+    score = block_coverage(time_s, rate_dps - true_rate - noise, sigma_dps, outside)
+    score["recalibration"] = check(time_s, rate_dps - true_rate, sigma_dps, outside)
     return score
 
 
@@ -189,4 +196,5 @@ def write_table(rows: Sequence[Mapping[str, Any]], output: str | Path, config: M
     return output
 
 
-__all__ = ["GOAL", "allan_sigma_summary", "block_coverage", "error_bar_summary", "pooled_share", "score_simulated", "score_still", "to_markdown", "write_table"]
+__all__ = ["GOAL", "allan_sigma_summary", "block_coverage", "error_bar_summary", "pooled_share", "score_against_truth",
+           "score_simulated", "score_still", "to_markdown", "write_table"]

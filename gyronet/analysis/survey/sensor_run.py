@@ -32,6 +32,7 @@ from gyronet.recordings.data import AXES, load_recording, load_truth
 from gyronet.training.dataset import static_rate_dps
 from gyronet.errors import GyronetError
 from gyronet.bundle.offline import compensate_as_deployed
+from gyronet.training.sigma_table import score_against_truth
 from gyronet.training.train import residual_report
 
 log = logging.getLogger(__name__)
@@ -163,24 +164,12 @@ def score_bundle(bundle: Path, check_csv: Path, startup_s: float, turn_on_differ
         scores[variant] = [report["ratio_to_floor"][a] for a in AXES]
     scores["n_out_of_range"] = int(plain.out_of_range[keep].sum())
     sigma = deployed.drift_sigma_dps[keep]
-    if np.isfinite(sigma).all():
-        scores["error_bar"] = error_bar_scores(recording.time_s[keep], rates["deployed"][keep], sigma, kept_truth)
+    if np.isfinite(sigma).all():  # the bar as deployed: blocks within 1 sigma, and allan.py's recalibration check
+        score = score_against_truth(recording.time_s[keep], rates["deployed"][keep], sigma,
+                                    deployed.out_of_range[keep], kept_truth)
+        scores["error_bar"] = {"within_1_sigma": [score["within_1_sigma"][a] for a in AXES],
+                               "worst_hour_rms_ratio": [score["recalibration"][a]["worst_hour_rms_ratio"] for a in AXES]}
     return scores
-
-
-def error_bar_scores(time_s: np.ndarray, rate_dps: np.ndarray, sigma_dps: np.ndarray,
-                     truth: Mapping[str, np.ndarray]) -> dict[str, list[float]]:
-    """The bar as deployed, per axis: the share of 60 s blocks whose drift error (rate - true rate - noise) is
-    within 1 sigma, and ``allan.py``'s recalibration check on the rate less the true rate (above 2 asks)."""
-    from gyronet.training.recalibration import check
-    from gyronet.training.sigma_table import block_coverage
-
-    true_rate = np.column_stack([truth[f"true_rate_{a}_dps"] for a in AXES])
-    noise = np.column_stack([truth[f"noise_{a}_dps"] for a in AXES])
-    coverage = block_coverage(time_s, rate_dps - true_rate - noise, sigma_dps, np.zeros(len(time_s), dtype=bool))
-    verdicts = check(time_s, rate_dps - true_rate, sigma_dps)
-    return {"within_1_sigma": [coverage["within_1_sigma"][a] for a in AXES],
-            "worst_hour_rms_ratio": [verdicts[a]["worst_hour_rms_ratio"] for a in AXES]}
 
 
 def describe_sensor(sensor: Mapping[str, Any]) -> dict[str, float]:

@@ -89,12 +89,13 @@ def summarize(results: Sequence[Mapping[str, Any]], ours: str, reference: str,
 def error_bar_summary(results: Sequence[Mapping[str, Any]], method: str) -> dict[str, Any] | None:
     """``method``'s error bar as deployed over the sensors: blocks within 1 sigma (pooled, and the spread over
     sensor-axes) and the sensors whose recalibration check asks on some axis; None without error bars."""
-    bars = [r["methods"][method]["error_bar"] for r in results if "error_bar" in r["methods"][method]]
-    if not bars:
+    scored = [r for r in results if "error_bar" in r["methods"][method]]
+    if not scored:
         return None
+    bars = [r["methods"][method]["error_bar"] for r in scored]
     within = np.array([b["within_1_sigma"] for b in bars])
     hours = np.array([b["worst_hour_rms_ratio"] for b in bars])
-    seeds = [int(r["sensor_seed"]) for r in results if "error_bar" in r["methods"][method]]
+    seeds = [int(r["sensor_seed"]) for r in scored]
     return {"n_sensors": len(bars), "within_1_sigma_pooled": float(within.mean()),
             "within_1_sigma_p10": float(np.percentile(within, 10)), "within_1_sigma_p90": float(np.percentile(within, 90)),
             "in_goal_share": float(np.mean((within >= 0.60) & (within <= 0.76))),
