@@ -2,7 +2,7 @@
 
 Writes A.json (CONTRACT.md section 3: per axis ``taus_s``, ``adev_dps``, N, B, K; for a compensated file with
 ``drift_sigma_*_dps`` columns also the error bar's median, 95 % and maximum, and whether to recalibrate:
-``gyronet.training.recalibration``, on a still record from ``still_s`` on) and A.png. A bag
+``gyronet.model.recalibration``, on a still record from ``still_s`` on) and A.png. A bag
 is read in memory (its sensor_msgs/Imu topic, ``rosbag.imu_topic``); it needs no temperature.
 """
 import logging
@@ -13,7 +13,7 @@ import numpy as np
 from omegaconf import DictConfig, OmegaConf
 
 from gyronet.allan import allan_report, format_table, plot_allan, report_to_json
-from gyronet.training import recalibration
+from gyronet.model import recalibration
 from gyronet.recordings.data import ALLAN_COLUMNS, load_recording
 from gyronet.errors import GyronetError
 from gyronet.recordings.importers.rosbag import is_rosbag, read_rates

@@ -1,4 +1,4 @@
-"""When to recalibrate (gyronet.training.recalibration): a still record against its own error bar; allan.py reports it."""
+"""When to recalibrate (gyronet.model.recalibration): a still record against its own error bar; allan.py reports it."""
 import json
 import os
 import subprocess
@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from gyronet.bundle.offline import SIGMA_COLUMNS, write_compensated
-from gyronet.training.recalibration import HOUR_RMS_LIMIT, check, summary_line
+from gyronet.model.recalibration import HOUR_RMS_LIMIT, check, summary_line
 
 ROOT = Path(__file__).resolve().parents[1]
 DRIFT_DPS = 0.005  # the drift error's standard deviation on a 60 s mean, and the bar that describes it

@@ -12,7 +12,6 @@ not know keeps TorchScript for every chunk.
 """
 from __future__ import annotations
 
-import math
 from operator import mul
 from typing import Callable
 

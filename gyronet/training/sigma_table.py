@@ -12,7 +12,7 @@ per 60 s block ``b`` and axis:
 
 Blocks with any sample outside the trained temperatures (``out_of_range``) are counted apart, with
 the median bar inside and outside (how much wider it gets). Goal: 60-76 % within 1 sigma. Each row
-also has ``allan.py``'s recalibration check (``gyronet.training.recalibration``; on a simulated
+also has ``allan.py``'s recalibration check (``gyronet.model.recalibration``; on a simulated
 record the true rate removed and its noise kept): a worst hour above 2x the bar asks for one.
 """
 from __future__ import annotations
@@ -25,11 +25,9 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 
 from gyronet.bundle.offline import SIGMA_COLUMNS
-from gyronet.model.error_bar import BLOCK_S
-from gyronet.recordings.data import AXES, load_recording, load_truth
-from gyronet.training.dataset import residual_block_means
-from gyronet.training.error_bar_fit import white_noise_var
-from gyronet.training.recalibration import check
+from gyronet.model.error_bar import BLOCK_S, white_noise_var
+from gyronet.recordings.data import AXES, load_recording, load_truth, residual_block_means
+from gyronet.model.recalibration import check
 
 log = logging.getLogger(__name__)
 

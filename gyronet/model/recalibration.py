@@ -20,10 +20,8 @@ from typing import Any
 
 import numpy as np
 
-from gyronet.model.error_bar import BLOCK_S
-from gyronet.recordings.data import AXES
-from gyronet.training.dataset import residual_block_means
-from gyronet.training.error_bar_fit import white_noise_var
+from gyronet.model.error_bar import BLOCK_S, white_noise_var
+from gyronet.recordings.data import AXES, residual_block_means
 
 HOUR_S = 3600.0
 HOUR_RMS_LIMIT = 2.0  # an hour's RMS of (block mean / its bar) above this: recalibrate
@@ -48,10 +46,22 @@ def check(time_s: np.ndarray, rate_dps: np.ndarray, sigma_dps: np.ndarray, outsi
     if len(blocks) < 2:
         return {}
     start_s = np.maximum(blocks[:, 0] - 0.5 * block_s, since_s[0])  # from each block's mean time
-    bar = np.sqrt(blocks[:, 4:7] ** 2 + white_noise_var(since_s, rate, block_s))
-    ratio = np.abs(blocks[:, 1:4]) / np.maximum(bar, 1e-12)  # a bar of 0 (no noise, no floor) and no error: 0
     end_s = since_s[-1] + float(np.median(np.diff(since_s)))  # the record's end
-    window_s = min(HOUR_S, end_s - since_s[0])
+    return judge(start_s, end_s, blocks[:, 1:4], blocks[:, 4:7], blocks[:, 7] > 0,
+                 white_noise_var(since_s, rate, block_s))
+
+
+def judge(start_s: np.ndarray, end_s: float, rate_dps: np.ndarray, sigma_dps: np.ndarray, outside: np.ndarray,
+          noise_var: np.ndarray) -> dict[str, dict[str, Any]]:
+    """:func:`check` on blocks already formed (the live stream forms them as it goes).
+
+    ``start_s`` (m,) each block's start and ``end_s`` the record's end, s; ``rate_dps`` and
+    ``sigma_dps`` (m, 3) the blocks' mean rate and bar; ``outside`` (m,) whether a block has a sample
+    outside the trained temperatures; ``noise_var`` (3,) the variance of a block mean's white noise.
+    """
+    bar = np.sqrt(np.asarray(sigma_dps) ** 2 + noise_var)
+    ratio = np.abs(rate_dps) / np.maximum(bar, 1e-12)  # a bar of 0 (no noise, no floor) and no error: 0
+    window_s = min(HOUR_S, end_s - start_s[0])
     last = max(1, np.searchsorted(start_s, end_s - window_s, side="right"))  # the windows that fit the record
     end = np.searchsorted(start_s, start_s[:last] + window_s)
     n = end - np.arange(last)
@@ -63,7 +73,7 @@ def check(time_s: np.ndarray, rate_dps: np.ndarray, sigma_dps: np.ndarray, outsi
         out[axis] = {"n_blocks": int(len(ratio)), "within_1_sigma": float(np.mean(ratio[:, a] <= 1.0)),
                      "within_2_sigma": float(np.mean(ratio[:, a] <= 2.0)),
                      "worst_hour_rms_ratio": float(hour_rms[worst]), "worst_hour_start_s": float(start_s[worst]),
-                     "window_s": float(window_s), "blocks_out_of_range": int(np.sum(blocks[:, 7] > 0)),
+                     "window_s": float(window_s), "blocks_out_of_range": int(np.sum(outside)),
                      "recalibrate": bool(hour_rms[worst] > HOUR_RMS_LIMIT)}
     return out
 
@@ -79,4 +89,4 @@ def summary_line(axis: str, result: dict[str, Any]) -> str:
             f"{result['within_2_sigma']:.0%} within 2 (about 68 and 95 % where the bar holds){outside}")
 
 
-__all__ = ["HOUR_RMS_LIMIT", "check", "summary_line"]
+__all__ = ["HOUR_RMS_LIMIT", "check", "judge", "summary_line"]
