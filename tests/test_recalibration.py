@@ -6,6 +6,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from gyronet.bundle.offline import SIGMA_COLUMNS, write_compensated
 from gyronet.model.recalibration import HOUR_RMS_LIMIT, check, summary_line
@@ -51,6 +52,16 @@ def test_one_bad_hour_is_found_and_the_startup_window_is_skipped():
     assert check(time_s, rate, np.full_like(rate, DRIFT_DPS))["x"]["recalibrate"]  # the window counted
 
 
+def test_lost_frames_thin_their_blocks_and_leave_the_verdict_as_it_was():
+    time_s, rate = _still()
+    sigma = np.full_like(rate, DRIFT_DPS)
+    kept = np.random.default_rng(2).random(len(time_s)) > 0.02  # 2 % of the frames lost, one here and there
+    intact, lossy = check(time_s, rate, sigma), check(time_s[kept], rate[kept], sigma[kept])
+    for axis in "xyz":
+        assert lossy[axis]["n_blocks"] == intact[axis]["n_blocks"] == 360
+        assert lossy[axis]["worst_hour_rms_ratio"] == pytest.approx(intact[axis]["worst_hour_rms_ratio"], rel=0.03)
+
+
 def test_a_short_record_is_judged_whole_and_rows_without_a_bar_are_left_out():
     time_s, rate = _still(hours=0.5)
     sigma = np.full_like(rate, DRIFT_DPS)
@@ -77,3 +88,62 @@ def test_allan_script_reports_the_verdict_of_a_compensated_still_file(tmp_path):
     assert [report[a]["recalibration"]["recalibrate"] for a in "xyz"] == [False, False, True]
     assert report["x"]["recalibration"]["n_blocks"] == 170  # from 600 s on
     assert "z: recalibrate" in proc.stderr + proc.stdout and "Traceback" not in proc.stderr
+
+
+def _live(time_s, rate, sigma, outside, chunks, still_s=0.0, writer=None):
+    """A LiveRecalibration fed in chunks of the given sizes (1: a row in floats, as a lone live frame)."""
+    from gyronet.deploy.stream.live_recal import LiveRecalibration
+
+    live, start = LiveRecalibration(still_s, writer), 0
+    for size in chunks:
+        if start >= len(time_s):
+            break
+        stop = min(start + size, len(time_s))
+        if size == 1:
+            live.add(float(time_s[start]), rate[start].tolist(), sigma[start].tolist(), bool(outside[start]))
+        else:
+            live.add_many(time_s[start:stop], rate[start:stop], sigma[start:stop], outside[start:stop])
+        start = stop
+    return live
+
+
+def test_the_live_check_equals_allan_py_s_on_the_same_record_row_by_row_or_in_chunks(caplog):
+    time_s, rate = _still(hours=3.0)
+    hour = (time_s >= 3600) & (time_s < 7200)
+    rate[hour, 1] += 0.02  # y leaves its bar for an hour
+    sigma, outside = np.full_like(rate, DRIFT_DPS), time_s > 10000
+    offline = check(time_s, rate, sigma, outside, still_s=600.0)
+    rng = np.random.default_rng(1)
+    chunks = rng.choice([1, 1, 7, 250, 4000], size=len(time_s))  # more than enough
+    with caplog.at_level("WARNING"):
+        live = _live(time_s, rate, sigma, outside, chunks, still_s=600.0)
+        live_figures = live.finish()
+    for axis in "xyz":
+        for key in ("n_blocks", "blocks_out_of_range", "recalibrate", "worst_hour_start_s", "window_s",
+                    "within_1_sigma", "within_2_sigma"):
+            assert live_figures[axis][key] == offline[axis][key], (axis, key)
+        assert live_figures[axis]["worst_hour_rms_ratio"] == pytest.approx(offline[axis]["worst_hour_rms_ratio"], rel=1e-9)
+    warned = [r.getMessage() for r in caplog.records if "recalibration check, live" in r.getMessage()]
+    assert len(warned) == 1 and "y: recalibrate" in warned[0]  # once, when y first asked
+
+
+def test_the_live_check_skips_each_startup_window_after_a_clock_restart_and_writes_tensorboard():
+    class Writer:
+        def __init__(self):
+            self.scalars = []
+
+        def add_scalar(self, tag, value, step):
+            self.scalars.append((tag, value, step))
+
+    time_s, rate = _still(hours=1.0)
+    sigma, outside = np.full_like(rate, DRIFT_DPS), np.zeros(len(time_s), bool)
+    rate[time_s < 300] += 1.0  # the first start-up window
+    writer = Writer()
+    live = _live(time_s[:1800], rate[:1800], sigma[:1800], outside[:1800], [900, 900], 300.0, writer)
+    live.new_segment(0.0)  # the sensor restarted its clock: a new window of 300 s, blocks after it
+    restarted = rate[1800:].copy()
+    restarted[:300] += 1.0
+    live.add_many(time_s[1800:] - 1800.0, restarted, sigma[1800:], outside[1800:])
+    figures = live.finish()
+    assert figures["x"]["n_blocks"] == 25 + 25 and not figures["x"]["recalibrate"]  # 1500 s after each window
+    assert {tag for tag, _, _ in writer.scalars} == {f"recalibration/worst_hour_{a}" for a in "xyz"}

@@ -21,6 +21,7 @@ from gyronet.bundle.compensator import Compensator
 from gyronet.recordings.data import GYRO_COLUMNS, block_means, load_recording, load_truth, write_recording
 from gyronet.bundle.offline import SIGMA_COLUMNS
 from gyronet.deploy.stream import LpBusLayout
+from gyronet.model.recalibration import check
 
 ROOT = Path(__file__).resolve().parents[1]
 N_SAMPLES = 400
@@ -107,8 +108,19 @@ def test_run_stream_in_process_equals_offline(bundle, short_recording, tmp_path)
     assert summary["n_out_of_range"] == len(plan.log["out_of_range_indices"]) > 0
     assert json.loads((tmp_path / "summary.json").read_text())["n_samples"] == len(plan.log["good_indices"])
     assert set(summary["allan"]) == {"x", "y", "z"}
-    assert_matches_offline(read_output(tmp_path / "live.csv"),
-                           *expected_output(bundle, short_recording, plan.log, "lpbus"))
+    output = read_output(tmp_path / "live.csv")
+    assert_matches_offline(output, *expected_output(bundle, short_recording, plan.log, "lpbus"))
+    # the live recalibration check: allan.py's on the output file (the stream's lost frames split its blocks there)
+    offline = check(output["time_s"].to_numpy(), output[list(GYRO_COLUMNS)].to_numpy(),
+                    output[list(SIGMA_COLUMNS)].to_numpy(), output["out_of_range"].to_numpy())
+    assert set(summary["recalibration"]) == set(offline) == {"x", "y", "z"}
+    for axis, figures in offline.items():
+        assert summary["recalibration"][axis]["n_blocks"] == figures["n_blocks"] == 3
+        assert summary["recalibration"][axis]["worst_hour_rms_ratio"] == pytest.approx(figures["worst_hour_rms_ratio"], rel=1e-9)
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    tags = EventAccumulator(str(tmp_path / "tb"), size_guidance={"images": 0}).Reload().Tags()["scalars"]
+    assert {f"recalibration/worst_hour_{axis}" for axis in "xyz"} <= set(tags)
 
 
 def test_run_stream_refuses_fields_the_bundle_cannot_use(bundle, tmp_path):

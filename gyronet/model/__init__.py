@@ -1,7 +1,8 @@
 """The drift model: causal features (T, dT/dt, T*dT/dt), the RBF network, baselines, Kalman stage.
 
 ``rbf`` holds ``RBFNet``; ``features`` the causal inputs; ``baselines`` and ``px4`` the cubics gyronet
-must beat; ``kalman`` the filter after the network; ``error_bar`` the per-sample 1-sigma.
+must beat; ``kalman`` the filter after the network; ``error_bar`` the per-sample 1-sigma, and
+``recalibration`` when a still record outgrows it.
 May import: ``gyronet.errors``, ``gyronet.atomic``, ``gyronet.recordings``, ``gyronet.allan``.
 """
 import importlib

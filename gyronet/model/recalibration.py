@@ -20,8 +20,8 @@ from typing import Any
 
 import numpy as np
 
-from gyronet.model.error_bar import BLOCK_S, white_noise_var
-from gyronet.recordings.data import AXES, residual_block_means
+from gyronet.model.error_bar import BLOCK_S
+from gyronet.recordings.data import AXES
 
 HOUR_S = 3600.0
 HOUR_RMS_LIMIT = 2.0  # an hour's RMS of (block mean / its bar) above this: recalibrate
@@ -33,22 +33,28 @@ def check(time_s: np.ndarray, rate_dps: np.ndarray, sigma_dps: np.ndarray, outsi
 
     ``time_s, rate_dps, sigma_dps``: a compensated still record (true rate zero once its start-up
     offset is applied, from ``still_s`` s on) and its ``drift_sigma`` columns; ``outside``: its
-    ``out_of_range`` flags. A record shorter than an hour is judged as a whole. Times in the result
-    are seconds from the record's first sample; empty when fewer than two blocks remain.
+    ``out_of_range`` flags. Blocks of ``block_s`` run from ``still_s`` on; a lost frame only thins
+    its block, and a block needs half the samples of a full one. A record shorter than an hour is
+    judged as a whole. Times in the result are seconds from the record's first sample; empty when
+    fewer than two blocks remain.
     """
     time_s = np.asarray(time_s, dtype=np.float64)
     sigma_dps = np.asarray(sigma_dps, dtype=np.float64)
     keep = (time_s - time_s[0] >= still_s) & np.all(np.isfinite(sigma_dps), axis=1)
     since_s, rate = time_s[keep] - time_s[0], np.asarray(rate_dps, dtype=np.float64)[keep]
-    flags = np.zeros(len(since_s)) if outside is None else np.asarray(outside, dtype=np.float64)[keep]
-    blocks = residual_block_means(since_s, np.column_stack([since_s, rate, sigma_dps[keep], flags]), block_s) \
-        if len(since_s) > 2 else np.empty((0, 8))
-    if len(blocks) < 2:
+    if len(since_s) < 3:
         return {}
-    start_s = np.maximum(blocks[:, 0] - 0.5 * block_s, since_s[0])  # from each block's mean time
-    end_s = since_s[-1] + float(np.median(np.diff(since_s)))  # the record's end
-    return judge(start_s, end_s, blocks[:, 1:4], blocks[:, 4:7], blocks[:, 7] > 0,
-                 white_noise_var(since_s, rate, block_s))
+    flags = np.zeros(len(since_s)) if outside is None else np.asarray(outside, dtype=np.float64)[keep]
+    index = ((since_s - still_s) // block_s).astype(np.int64)
+    starts = np.flatnonzero(np.concatenate([[True], index[1:] != index[:-1]]))
+    counts = np.diff(np.append(starts, len(index)))
+    means = np.add.reduceat(np.column_stack([rate, sigma_dps[keep], flags]), starts, axis=0) / counts[:, None]
+    full = counts >= 0.5 * np.median(counts)
+    if full.sum() < 2:
+        return {}
+    noise_var = 0.5 * np.mean(np.diff(rate, axis=0) ** 2, axis=0) / float(np.median(counts))
+    start_s = still_s + block_s * index[starts][full]
+    return judge(start_s, start_s[-1] + block_s, means[full, :3], means[full, 3:6], means[full, 6] > 0, noise_var)
 
 
 def judge(start_s: np.ndarray, end_s: float, rate_dps: np.ndarray, sigma_dps: np.ndarray, outside: np.ndarray,

@@ -25,6 +25,7 @@ from gyronet.bundle.compensator import Compensator
 from gyronet.model.small_model import SMALL_ROWS
 from gyronet.deploy.stream.events import Sample, SampleBlock, as_samples, n_samples
 from gyronet.deploy.stream.live_allan import LiveAllan
+from gyronet.deploy.stream.live_recal import LiveRecalibration
 from gyronet.deploy.stream.output import LiveWriter
 
 log = logging.getLogger(__name__)
@@ -75,6 +76,8 @@ class ChunkWriter:
         The output CSV.
     allan
         The live Allan monitor (None: none).
+    recalibration
+        The live recalibration check (None: none).
     port
         The port's name, for messages.
     max_samples
@@ -82,8 +85,9 @@ class ChunkWriter:
     """
 
     def __init__(self, compensator: Compensator, out: LiveWriter, allan: LiveAllan | None, port: str,
-                 max_samples: int | None = None):
+                 max_samples: int | None = None, recalibration: LiveRecalibration | None = None):
         self.compensator, self.out, self.allan, self.port = compensator, out, allan, port
+        self.recalibration = recalibration
         self.max_samples = max_samples
         self.columns = list(dict.fromkeys(["time_s", "temp_c", *compensator.input_columns]))
         self.n_out_of_range = 0
@@ -115,6 +119,8 @@ class ChunkWriter:
             self.clock_restarts += 1
             if self.allan is not None:
                 self.allan.new_segment(first.time_s)
+            if self.recalibration is not None:
+                self.recalibration.new_segment(first.time_s)
         done = 0
         if n_rows(samples) <= SMALL_ROWS:
             samples = as_samples(samples)
@@ -163,6 +169,9 @@ class ChunkWriter:
             if self.allan is not None:
                 for time_s, rate_dps, *_ in rows:
                     self.allan.add(time_s, rate_dps)
+            if self.recalibration is not None:
+                for time_s, rate_dps, _, out_of_range, _, sigma_dps in rows:
+                    self.recalibration.add(time_s, rate_dps, sigma_dps, out_of_range)
         return len(rows)
 
     def _startup_end(self, time_s: np.ndarray) -> int:
@@ -181,6 +190,8 @@ class ChunkWriter:
             self._out_of_range(columns["temp_c"][flagged].tolist(), columns["time_s"][flagged].tolist())
         if self.allan is not None:
             self.allan.add_many(columns["time_s"], result.rate_dps)
+        if self.recalibration is not None:
+            self.recalibration.add_many(columns["time_s"], result.rate_dps, result.drift_sigma_dps, result.out_of_range)
 
     def _out_of_range(self, temp_c: Sequence[float], time_s: Sequence[float]) -> None:
         """Count the samples outside the trained range; name each at debug level."""

@@ -31,6 +31,7 @@ from gyronet.deploy.stream.allocator import fix_mmap_threshold
 from gyronet.deploy.stream.chunk import RATE_PROBE_SAMPLES, ChunkWriter, RateGate, n_rows
 from gyronet.deploy.stream.events import Sample, SampleBlock
 from gyronet.deploy.stream.live_allan import LiveAllan
+from gyronet.deploy.stream.live_recal import LiveRecalibration
 from gyronet.deploy.stream.lpbus_setup import LpBusSetup, LpBusStart, start_lpbus
 from gyronet.deploy.stream.output import LiveWriter, OutputError, output_names
 from gyronet.deploy.stream.priority import use_realtime
@@ -140,6 +141,9 @@ def run_stream(bundle_dir: str | Path, port: str, output: str | Path, protocol: 
     writer = _tb_writer(tb_dir) if tb_dir is not None and allan_every_s > 0 else None
     allan = LiveAllan(writer, allan_every_s, float(compensator.meta["fs_hz"]), background=True) \
         if allan_every_s > 0 else None
+    # a still sensor, as the Allan monitor assumes: its 60 s means held against their error bar
+    recalibration = LiveRecalibration(float((startup or {}).get("still_s") or 0.0), writer) \
+        if allan is not None and compensator.error_bar is not None else None
     counter = FaultCounter()
     started = time.monotonic()
     stopped, failure = "port_gone", None
@@ -153,7 +157,7 @@ def run_stream(bundle_dir: str | Path, port: str, output: str | Path, protocol: 
                          on_reopen=sensor.reopen_hook(parser, port) if sensor is not None else None, **options)
     gate = RateGate(compensator, resample, f"{port}: the stream",
                     RATE_PROBE_SAMPLES if max_samples is None else min(RATE_PROBE_SAMPLES, max_samples))
-    sink = ChunkWriter(compensator, out, allan, port, max_samples)
+    sink = ChunkWriter(compensator, out, allan, port, max_samples, recalibration)
     try:
         try:
             with _steady_runtime(realtime_priority):
@@ -171,8 +175,10 @@ def run_stream(bundle_dir: str | Path, port: str, output: str | Path, protocol: 
     finally:
         chunks.close()  # closes the port
         out.close()
+    recalibration_figures = recalibration.finish() if recalibration is not None else {}  # before the writer closes
     _finish_allan(allan, writer)
     summary = _summary(counter, compensator, out, allan, stopped, time.monotonic() - started, sink, sensor)
+    summary["recalibration"] = recalibration_figures
     log.info("stopped (%s): %s; %d out of the trained temperature range; %d clock restart(s)", stopped,
              counter.summary(), summary["n_out_of_range"], summary["clock_restarts"])
     summary_note = ""

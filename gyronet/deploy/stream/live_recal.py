@@ -1,0 +1,150 @@
+"""``allan.py``'s recalibration check as the stream goes: 60 s means of the compensated rate against their bar.
+
+On a still sensor (what the live Allan monitor assumes too) every finished 60 s block of the
+compensated rate, from the end of the start-up window on, is held against its mean ``drift_sigma``
+with the white noise of a 60 s mean added (``gyronet.model.recalibration.judge``, the same rule as
+``allan.py`` on the output file). An axis that asks for a new calibration is named in one warning
+when it first does over a full hour (a shorter record is judged whole, as ``allan.py`` does, but a
+few blocks looked at every minute would cry wolf); the figures go to TensorBoard (``recalibration/worst_hour_<axis>``) and the
+summary. A sample costs a few float additions; the judgement, once a minute, well under a
+millisecond on a day of blocks.
+"""
+from __future__ import annotations
+
+import logging
+from typing import Any
+
+import numpy as np
+
+from gyronet.model.error_bar import BLOCK_S
+from gyronet.model.recalibration import HOUR_S, judge, summary_line
+from gyronet.recordings.data import AXES
+
+log = logging.getLogger(__name__)
+
+
+class LiveRecalibration:
+    """60 s blocks of a still stream's compensated rate and bar, judged as each one ends.
+
+    Parameters
+    ----------
+    still_s
+        The start-up window, s (``startup.still_s``): blocks start when it ends.
+    writer
+        A TensorBoard ``SummaryWriter``, or None.
+    """
+
+    def __init__(self, still_s: float = 0.0, writer: Any = None, block_s: float = BLOCK_S):
+        self.still_s, self.block_s, self.writer = float(still_s), float(block_s), writer
+        self._origin_s: float | None = None  # the first sample's time: the results count from it, as check's
+        self._grid_s: float | None = None  # where the blocks start: the end of the (latest) start-up window
+        self._shift_s = 0.0  # added to the sensor's time: a restarted clock continues after a break
+        self._last_s: float | None = None
+        self._block = -1
+        self._sums = [0.0] * 7  # rate x, y, z, sigma x, y, z, samples outside the trained temperatures
+        self._count = 0
+        self._previous: list | None = None  # the last rate, for the white noise's first differences
+        self._diff_sq, self._n_diff = [0.0, 0.0, 0.0], 0
+        self._blocks: list[list] = []  # start s, rate (3), sigma (3), outside, samples
+        self.last: dict[str, dict[str, Any]] = {}
+        self.asked: set[str] = set()
+
+    def add(self, time_s: float, rate_dps: list, sigma_dps: list, outside: bool) -> None:
+        """One row in plain floats (the live path's lone frame): a few additions."""
+        time_s += self._shift_s
+        if self._grid_s is None:
+            self._begin(time_s)
+        self._last_s = time_s
+        if time_s < self._grid_s:
+            return
+        block = int((time_s - self._grid_s) // self.block_s)
+        if block != self._block:
+            self._close()
+            self._block = block
+        self._sums = [total + v for total, v in zip(self._sums, (*rate_dps, *sigma_dps, outside))]
+        self._count += 1
+        if self._previous is not None:
+            self._diff_sq = [total + (v - p) ** 2 for total, v, p in zip(self._diff_sq, rate_dps, self._previous)]
+            self._n_diff += 1
+        self._previous = rate_dps
+
+    def add_many(self, time_s: np.ndarray, rate_dps: np.ndarray, sigma_dps: np.ndarray, outside: np.ndarray) -> None:
+        """Rows (n,), (n, 3), (n, 3), (n,) in stream order: the blocks of ``add`` on each in turn, to rounding."""
+        time_s = np.asarray(time_s, dtype=np.float64) + self._shift_s
+        if not len(time_s):
+            return
+        if self._grid_s is None:
+            self._begin(float(time_s[0]))
+        self._last_s = float(time_s[-1])
+        keep = time_s >= self._grid_s
+        if not keep.any():
+            return
+        time_s, rate_dps = time_s[keep], np.asarray(rate_dps, dtype=np.float64)[keep]
+        rows = np.column_stack([rate_dps, np.asarray(sigma_dps, dtype=np.float64)[keep], np.asarray(outside)[keep]])
+        first = rate_dps[:1] if self._previous is None else np.array([self._previous], dtype=np.float64)
+        steps = np.diff(rate_dps, axis=0, prepend=first)
+        self._diff_sq = (np.asarray(self._diff_sq) + np.sum(steps ** 2, axis=0)).tolist()
+        self._n_diff += len(steps) - (self._previous is None)
+        self._previous = rate_dps[-1].tolist()
+        index = ((time_s - self._grid_s) // self.block_s).astype(np.int64)
+        for block in np.unique(index):
+            if block != self._block:
+                self._close()
+                self._block = int(block)
+            mine = index == block
+            self._sums = (np.asarray(self._sums) + rows[mine].sum(axis=0)).tolist()
+            self._count += int(mine.sum())
+
+    def new_segment(self, next_time_s: float) -> None:
+        """The sensor clock restarted, and with it the compensator's start-up window: blocks start again after it."""
+        if self._last_s is None:
+            return
+        self._close()
+        self._shift_s = self._last_s + self.block_s - next_time_s  # a block's break, then the new clock
+        self._grid_s, self._block, self._previous = None, -1, None
+
+    def _begin(self, time_s: float) -> None:
+        """The first sample of a clock: the start-up window runs from it."""
+        if self._origin_s is None:
+            self._origin_s = time_s
+        self._grid_s = time_s + self.still_s
+
+    def finish(self) -> dict[str, dict[str, Any]]:
+        """Judge the last full block too, log one line per axis, and return the figures (empty under two blocks)."""
+        self._close()
+        for axis, result in self.last.items():
+            log.info("recalibration check, live: %s", summary_line(axis, result))
+        return self.last
+
+    def _close(self) -> None:
+        """End the open block, then judge the blocks so far that hold half the samples of a full one (as ``check``)."""
+        count, sums = self._count, self._sums
+        self._count, self._sums = 0, [0.0] * 7
+        if count < 2:
+            return
+        self._blocks.append([self._grid_s + self._block * self.block_s, *(v / count for v in sums[:6]), sums[6] > 0,
+                             count])
+        blocks = np.array(self._blocks, dtype=np.float64)
+        full = float(np.median(blocks[:, 8]))
+        blocks = blocks[blocks[:, 8] >= 0.5 * full]
+        if len(blocks) < 2 or self._n_diff < 2:
+            return
+        # a block mean's white noise: half the mean squared first difference over a full block's samples
+        noise_var = 0.5 * np.asarray(self._diff_sq) / self._n_diff / full
+        since_s = blocks[:, 0] - self._origin_s
+        self.last = judge(since_s, since_s[-1] + self.block_s, blocks[:, 1:4], blocks[:, 4:7], blocks[:, 7] > 0,
+                          noise_var)
+        for axis, result in self.last.items():
+            if result["recalibrate"] and result["window_s"] >= HOUR_S and axis not in self.asked:
+                self.asked.add(axis)
+                log.warning("recalibration check, live: %s", summary_line(axis, result))
+        if self.writer is not None:
+            try:
+                for axis in AXES:
+                    self.writer.add_scalar(f"recalibration/worst_hour_{axis}", self.last[axis]["worst_hour_rms_ratio"],
+                                           int(round(since_s[-1] + self.block_s)))
+            except OSError as err:  # a full disk must not stop the compensation
+                log.error("TensorBoard: cannot write the recalibration check (%s)", err)
+
+
+__all__ = ["LiveRecalibration"]
