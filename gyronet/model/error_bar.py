@@ -205,13 +205,6 @@ def from_meta(meta: Mapping[str, Any], source: str) -> ErrorBar | None:
     return ErrorBar.from_dict(meta[META_KEY], len(meta["features"]), source)
 
 
-def white_noise_var(time_s: np.ndarray, y: np.ndarray, block_s: float = BLOCK_S) -> np.ndarray:
-    """(3,) variance of a ``block_s`` mean of the white noise in ``y``: var(first difference) / 2 per sample."""
-    dt = float(np.median(np.diff(time_s))) if len(time_s) > 1 else 1.0
-    per_sample = 0.5 * np.var(np.diff(y, axis=0), axis=0) if len(y) > 2 else np.zeros(y.shape[1])
-    return per_sample / max(block_s / dt, 1.0)
-
-
 # -- the members network --------------------------------------------------------------------------
 
 
@@ -288,4 +281,4 @@ def _plain(value: Any) -> Any:
     return value
 
 
-__all__ = ["BLOCK_S", "ErrorBar", "from_meta", "stack_members", "white_noise_var"]
+__all__ = ["BLOCK_S", "ErrorBar", "from_meta", "stack_members"]

@@ -1,4 +1,4 @@
-"""The bundle's model on one row of plain floats for a chunk of a few rows: a live frame without TorchScript's per-op cost.
+"""The bundle's model on one row, for chunks of a few rows: a live frame without TorchScript's per-op cost.
 
 At 1 kHz frames arrive one at a time, and one TorchScript call on one row costs about 30 ops of
 interpreter overhead (~80 us on the project VM) for a few hundred flops. The same forward, written

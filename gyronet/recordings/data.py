@@ -221,24 +221,6 @@ def block_means(values: np.ndarray, time_s: np.ndarray, block_s: float = 60.0,
     return means.reshape((-1,) + tail)
 
 
-def residual_block_means(time_s: np.ndarray, residual: np.ndarray, block_s: float = 60.0) -> np.ndarray:
-    """The ``block_s`` block means that ``block_rmse`` squares, (m, axes).
-
-    Blocks are formed on contiguous runs: a time-block split leaves gaps, and a block never
-    straddles one. A block needs half the samples of a full one, the one the median sample lies in:
-    where a mask (the trained temperatures, say) flickers, its pieces of a few samples are no 60 s means.
-    """
-    gaps = np.flatnonzero(np.diff(time_s) > 1.5 * np.median(np.diff(time_s))) + 1
-    spans = [(a, b) for a, b in zip([0, *gaps], [*gaps, len(time_s)]) if b - a > 1]
-    if not spans:
-        return np.empty((0, residual.shape[1]))
-    counts = [np.bincount(gap_blocks(time_s[a:b], block_s)) for a, b in spans]
-    full = float(np.median(np.concatenate([np.repeat(c, c) for c in counts])))
-    pieces = [block_means(residual[a:b], time_s[a:b], block_s, full_count=full) for a, b in spans]
-    kept = [p for p in pieces if len(p)]
-    return np.concatenate(kept) if kept else np.empty((0, residual.shape[1]))
-
-
 def recorded_time_s(time_s: np.ndarray) -> np.ndarray:
     """Time since the first sample with every break (an interval over ``BREAK_FACTOR`` median
     intervals) shortened to one median interval; equal to ``time_s - time_s[0]`` without breaks."""

@@ -29,8 +29,8 @@ from typing import Any, Callable, Sequence
 import numpy as np
 import torch
 
-from gyronet.recordings.data import AXES, residual_block_means
-from gyronet.training.dataset import DriftData
+from gyronet.recordings.data import AXES
+from gyronet.training.dataset import DriftData, residual_block_means
 from gyronet.training.run_data import load_runs, stack_runs
 from gyronet.training.runs import RunsData, minus_startup_offset
 

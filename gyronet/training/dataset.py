@@ -19,8 +19,8 @@ import numpy as np
 
 from gyronet.errors import GyronetError, RecordingError
 from gyronet.model.features import PAPER_FEATURES, FeatureExtractor, required_columns
-from gyronet.recordings.data import (AXES, GYRO_COLUMNS, Recording, block_means, load_recording,
-                                     residual_block_means, split_by_time, time_blocks)
+from gyronet.recordings.data import (AXES, GYRO_COLUMNS, Recording, block_means, gap_blocks, load_recording,
+                                     split_by_time, time_blocks)
 
 log = logging.getLogger(__name__)
 
@@ -278,5 +278,23 @@ def block_rmse(time_s: np.ndarray, residual: np.ndarray, block_s: float = 60.0) 
     return np.sqrt(np.mean(residual_block_means(time_s, residual, block_s) ** 2, axis=0))
 
 
+def residual_block_means(time_s: np.ndarray, residual: np.ndarray, block_s: float = 60.0) -> np.ndarray:
+    """The ``block_s`` block means that ``block_rmse`` squares, (m, axes).
+
+    Blocks are formed on contiguous runs: a time-block split leaves gaps, and a block never
+    straddles one. A block needs half the samples of a full one, the one the median sample lies in:
+    where a mask (the trained temperatures, say) flickers, its pieces of a few samples are no 60 s means.
+    """
+    gaps = np.flatnonzero(np.diff(time_s) > 1.5 * np.median(np.diff(time_s))) + 1
+    spans = [(a, b) for a, b in zip([0, *gaps], [*gaps, len(time_s)]) if b - a > 1]
+    if not spans:
+        return np.empty((0, residual.shape[1]))
+    counts = [np.bincount(gap_blocks(time_s[a:b], block_s)) for a, b in spans]
+    full = float(np.median(np.concatenate([np.repeat(c, c) for c in counts])))
+    pieces = [block_means(residual[a:b], time_s[a:b], block_s, full_count=full) for a, b in spans]
+    kept = [p for p in pieces if len(p)]
+    return np.concatenate(kept) if kept else np.empty((0, residual.shape[1]))
+
+
 __all__ = ["Blocks", "DriftData", "TrainingData", "block_rmse", "check_features_present", "check_physical", "clear_caches",
-           "featurize", "static_rate_dps", "to_blocks", "time_blocks", "trained_range_c"]
+           "featurize", "residual_block_means", "static_rate_dps", "to_blocks", "time_blocks", "trained_range_c"]

@@ -13,8 +13,8 @@ from typing import Any, Callable, Mapping, Sequence
 import numpy as np
 import torch
 
-from gyronet.model.error_bar import BLOCK_S, EDGE_FRACTION, ErrorBar, stack_members, white_noise_var
-from gyronet.recordings.data import residual_block_means
+from gyronet.model.error_bar import BLOCK_S, EDGE_FRACTION, ErrorBar, stack_members
+from gyronet.training.dataset import residual_block_means
 
 log = logging.getLogger(__name__)
 
@@ -83,6 +83,13 @@ def shape_of(model: torch.nn.Module, parts: Sequence[torch.nn.Module] | None, x_
     low_dps, high_dps = edge_slopes(model, x_train, box)
     members = stack_members(parts) if parts else None
     return ErrorBar(np.zeros(3), np.ones(3), *box, low_dps, high_dps, members)
+
+
+def white_noise_var(time_s: np.ndarray, y: np.ndarray, block_s: float = BLOCK_S) -> np.ndarray:
+    """(3,) variance of a ``block_s`` mean of the white noise in ``y``: var(first difference) / 2 per sample."""
+    dt = float(np.median(np.diff(time_s))) if len(time_s) > 1 else 1.0
+    per_sample = 0.5 * np.var(np.diff(y, axis=0), axis=0) if len(y) > 2 else np.zeros(y.shape[1])
+    return per_sample / max(block_s / dt, 1.0)
 
 
 def held_out_stats(model: torch.nn.Module, parts: Sequence[torch.nn.Module] | None, time_s: np.ndarray,
@@ -248,4 +255,5 @@ def detach(model: torch.nn.Module) -> tuple[dict | None, list | None, bool]:
     return model.__dict__.pop(STATS_ATTR, None), model.__dict__.pop(MEMBERS_ATTR, None), attached
 
 
-__all__ = ["attach", "calibrate", "cross_check", "detach", "error_bar_meta", "fit_error_bar", "held_out_stats", "merge_stats", "shape_of"]
+__all__ = ["attach", "calibrate", "cross_check", "detach", "error_bar_meta", "fit_error_bar", "held_out_stats", "merge_stats", "shape_of",
+           "white_noise_var"]

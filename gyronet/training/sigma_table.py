@@ -25,8 +25,10 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 
 from gyronet.bundle.offline import SIGMA_COLUMNS
-from gyronet.model.error_bar import BLOCK_S, white_noise_var
-from gyronet.recordings.data import AXES, load_recording, load_truth, residual_block_means
+from gyronet.model.error_bar import BLOCK_S
+from gyronet.recordings.data import AXES, load_recording, load_truth
+from gyronet.training.dataset import residual_block_means
+from gyronet.training.error_bar_fit import white_noise_var
 from gyronet.model.recalibration import check
 
 log = logging.getLogger(__name__)

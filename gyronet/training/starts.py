@@ -30,9 +30,9 @@ import numpy as np
 import torch
 from torch import nn
 
-from gyronet.recordings.data import AXES, residual_block_means
+from gyronet.recordings.data import AXES
 from gyronet.training import error_bar_fit
-from gyronet.training.dataset import DriftData
+from gyronet.training.dataset import DriftData, residual_block_means
 from gyronet.training.refit import continue_on_every_block
 from gyronet.training.steps import predict, validation_metrics
 
