@@ -49,12 +49,25 @@ def check(time_s: np.ndarray, rate_dps: np.ndarray, sigma_dps: np.ndarray, outsi
     starts = np.flatnonzero(np.concatenate([[True], index[1:] != index[:-1]]))
     counts = np.diff(np.append(starts, len(index)))
     means = np.add.reduceat(np.column_stack([rate, sigma_dps[keep], flags]), starts, axis=0) / counts[:, None]
-    full = counts >= 0.5 * np.median(counts)
+    return judge_blocks(still_s + block_s * index[starts], means, counts, np.mean(np.diff(rate, axis=0) ** 2, axis=0),
+                        block_s)
+
+
+def judge_blocks(start_s: np.ndarray, means: np.ndarray, counts: np.ndarray, mean_step_sq: np.ndarray,
+                 block_s: float = BLOCK_S) -> dict[str, dict[str, Any]]:
+    """:func:`judge` on the blocks that hold half the samples of a full one (the median), {} under two.
+
+    ``means`` (m, 7): each block's mean rate (3), bar (3) and share outside the trained temperatures;
+    ``counts`` (m,) its samples; ``mean_step_sq`` (3,) the mean squared first difference of the rate,
+    from which a full block mean's white noise is half of it over a full block's samples.
+    """
+    full_count = float(np.median(counts))
+    full = counts >= 0.5 * full_count
     if full.sum() < 2:
         return {}
-    noise_var = 0.5 * np.mean(np.diff(rate, axis=0) ** 2, axis=0) / float(np.median(counts))
-    start_s = still_s + block_s * index[starts][full]
-    return judge(start_s, start_s[-1] + block_s, means[full, :3], means[full, 3:6], means[full, 6] > 0, noise_var)
+    start_s, means = start_s[full], means[full]
+    return judge(start_s, start_s[-1] + block_s, means[:, :3], means[:, 3:6], means[:, 6] > 0,
+                 0.5 * np.asarray(mean_step_sq) / full_count)
 
 
 def judge(start_s: np.ndarray, end_s: float, rate_dps: np.ndarray, sigma_dps: np.ndarray, outside: np.ndarray,
@@ -95,4 +108,4 @@ def summary_line(axis: str, result: dict[str, Any]) -> str:
             f"{result['within_2_sigma']:.0%} within 2 (about 68 and 95 % where the bar holds){outside}")
 
 
-__all__ = ["HOUR_RMS_LIMIT", "check", "judge", "summary_line"]
+__all__ = ["HOUR_RMS_LIMIT", "check", "judge", "judge_blocks", "summary_line"]

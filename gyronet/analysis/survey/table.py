@@ -12,7 +12,9 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 
 from gyronet.atomic import atomic_output
+from gyronet.model.recalibration import HOUR_RMS_LIMIT
 from gyronet.recordings.data import AXES
+from gyronet.training.sigma_table import GOAL
 from gyronet.errors import GyronetError
 from gyronet.analysis.survey.sensor_run import VARIANTS, describe_sensor
 
@@ -98,9 +100,9 @@ def error_bar_summary(results: Sequence[Mapping[str, Any]], method: str) -> dict
     seeds = [int(r["sensor_seed"]) for r in scored]
     return {"n_sensors": len(bars), "within_1_sigma_pooled": float(within.mean()),
             "within_1_sigma_p10": float(np.percentile(within, 10)), "within_1_sigma_p90": float(np.percentile(within, 90)),
-            "in_goal_share": float(np.mean((within >= 0.60) & (within <= 0.76))),
+            "in_goal_share": float(np.mean((within >= GOAL[0]) & (within <= GOAL[1]))),
             "worst_hour_rms_ratio_max": float(hours.max()),
-            "recalibrate_sensors": [s for s, h in zip(seeds, hours) if h.max() > 2.0]}
+            "recalibrate_sensors": [s for s, h in zip(seeds, hours) if h.max() > HOUR_RMS_LIMIT]}
 
 
 def to_markdown(summary: Mapping[str, Any], settings: Mapping[str, Any]) -> str:
@@ -130,7 +132,7 @@ def to_markdown(summary: Mapping[str, Any], settings: Mapping[str, Any]) -> str:
     if bar:
         asks = bar["recalibrate_sensors"]
         lines += [f"{ours}'s error bar as deployed ({bar['n_sensors']} sensors): {100 * bar['within_1_sigma_pooled']:.0f} % of "
-                  f"60 s blocks within 1 sigma of the drift error, pooled (goal 60-76 %; sensor-axes "
+                  f"60 s blocks within 1 sigma of the drift error, pooled (goal {100 * GOAL[0]:.0f}-{100 * GOAL[1]:.0f} %; sensor-axes "
                   f"{100 * bar['within_1_sigma_p10']:.0f}-{100 * bar['within_1_sigma_p90']:.0f} % from the 10th to the 90th "
                   f"percentile, {100 * bar['in_goal_share']:.0f} % of them in the goal); allan.py's recalibration check "
                   f"asks on {len(asks)} sensor(s){' (' + ', '.join(map(str, asks)) + ')' if asks else ''}, worst hour "

@@ -2,7 +2,7 @@
 
 On a still sensor (what the live Allan monitor assumes too) every finished 60 s block of the
 compensated rate, from the end of the start-up window on, is held against its mean ``drift_sigma``
-with the white noise of a 60 s mean added (``gyronet.model.recalibration.judge``, the same rule as
+with the white noise of a 60 s mean added (``gyronet.model.recalibration.judge_blocks``, the same rule as
 ``allan.py`` on the output file). An axis that asks for a new calibration is named in one warning
 when it first does over a full hour (a shorter record is judged whole, as ``allan.py`` does, but a
 few blocks looked at every minute would cry wolf); the figures go to TensorBoard
@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 
 from gyronet.model.error_bar import BLOCK_S
-from gyronet.model.recalibration import HOUR_S, judge, summary_line
+from gyronet.model.recalibration import HOUR_S, judge_blocks, summary_line
 from gyronet.recordings.data import AXES
 
 log = logging.getLogger(__name__)
@@ -45,7 +45,7 @@ class LiveRecalibration:
         self._count = 0
         self._previous: list | None = None  # the last rate, for the white noise's first differences
         self._diff_sq, self._n_diff = [0.0, 0.0, 0.0], 0
-        self._blocks = np.empty((64, 9))  # per block: start s, rate (3), sigma (3), outside, samples
+        self._blocks = np.empty((64, 9))  # per block: start s, mean rate (3), sigma (3) and outside share, samples
         self._n = 0
         self.last: dict[str, dict[str, Any]] = {}
         self.asked: set[str] = set()
@@ -132,23 +132,21 @@ class LiveRecalibration:
             return False
         if self._n == len(self._blocks):
             self._blocks = np.resize(self._blocks, (2 * self._n, 9))
-        self._blocks[self._n] = [self._grid_s + self._block * self.block_s, *(v / count for v in sums[:6]), sums[6] > 0,
-                                 count]
+        self._blocks[self._n] = [self._grid_s + self._block * self.block_s, *(v / count for v in sums), count]
         self._n += 1
         return True
 
     def _judge(self) -> None:
         """Judge the blocks so far that hold half the samples of a full one (as ``check``); warn, write TensorBoard."""
-        blocks = self._blocks[:self._n]
-        full = float(np.median(blocks[:, 8]))
-        blocks = blocks[blocks[:, 8] >= 0.5 * full]
-        if len(blocks) < 2 or self._n_diff < 2:
+        if self._n_diff < 2:
             return
-        # a block mean's white noise: half the mean squared first difference over a full block's samples
-        noise_var = 0.5 * np.asarray(self._diff_sq) / self._n_diff / full
+        blocks = self._blocks[:self._n]
         since_s = blocks[:, 0] - self._origin_s
-        self.last = judge(since_s, since_s[-1] + self.block_s, blocks[:, 1:4], blocks[:, 4:7], blocks[:, 7] > 0,
-                          noise_var)
+        judged = judge_blocks(since_s, blocks[:, 1:8], blocks[:, 8], np.asarray(self._diff_sq) / self._n_diff,
+                              self.block_s)
+        if not judged:
+            return
+        self.last = judged
         for axis, result in self.last.items():
             if result["recalibrate"] and result["window_s"] >= HOUR_S and axis not in self.asked:
                 self.asked.add(axis)
