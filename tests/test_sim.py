@@ -231,6 +231,19 @@ def test_noise_depends_on_seed_only():
     assert not np.allclose(gyro(one, "truth", "noise"), gyro(three, "truth", "noise"))
 
 
+def test_noise_seed_moves_the_noise_and_nothing_else():
+    """Two sensors in one chamber run: the same history and temperature curve, each its own noise."""
+    base = simulate("random", 1.0, seed=3, sensor_seed=4, duration_s=3600)
+    same = simulate("random", 1.0, seed=3, sensor_seed=4, duration_s=3600, noise_seed=3)
+    other = simulate("random", 1.0, seed=3, sensor_seed=4, duration_s=3600, noise_seed=7)
+    assert all(np.array_equal(v, same.recording[k]) for k, v in base.recording.items())
+    assert "noise_seed" not in same.meta and other.meta["noise_seed"] == "7"
+    for column in ("chamber_temp_c", "die_temp_c", "drift_x_dps", "true_rate_z_dps"):
+        assert np.array_equal(base.truth[column], other.truth[column]), column
+    assert not np.allclose(gyro(base, "truth", "noise"), gyro(other, "truth", "noise"))
+    assert not np.array_equal(base.recording["temp_c"], other.recording["temp_c"])
+
+
 # --- optional effects --------------------------------------------------------------------------
 
 @pytest.fixture(scope="module")

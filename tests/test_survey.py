@@ -108,6 +108,21 @@ def test_a_survey_sensor_gets_a_new_turn_on_bias_each_run_and_the_truth_adds_up(
         np.testing.assert_allclose(sim.recording[f"gyro_{a}_dps"], total, atol=1e-12)
 
 
+def test_each_survey_sensor_has_its_own_noise_on_the_shared_history(tmp_path):
+    """One noise draw for all would make the start-up offset's noise one constant shared by the survey."""
+    from gyronet.analysis.survey.sensor_run import History, SurveySpec, simulate_history
+    from gyronet.recordings.data import load_truth
+
+    spec = SurveySpec(methods={}, fs_hz=1.0)
+    history = History("random", 2, duration_s=1800)
+    truths = []
+    for sensor_seed in (0, 1):
+        (tmp_path / str(sensor_seed)).mkdir()
+        truths.append(load_truth(simulate_history(tmp_path / str(sensor_seed), "check", sensor_seed, history, spec)).columns)
+    assert np.array_equal(truths[0]["chamber_temp_c"], truths[1]["chamber_temp_c"])
+    assert not np.allclose(truths[0]["noise_x_dps"], truths[1]["noise_x_dps"])
+
+
 TINY = ["n_sensors=2", "jobs=1", "fs_hz=1", "startup_s=300", "progress=false",
         'train_overrides=["train.max_epochs=40","train.patience=20"]',
         "+train_history.profile_options.dwell_s=300", "+train_history.profile_options.rate_c_per_min=4",

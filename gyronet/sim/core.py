@@ -40,7 +40,7 @@ def simulate(profile: str = "paper", fs_hz: float = 10.0, seed: int = 0, sensor_
              rate_steps: Sequence[Mapping[str, Any]] | None = None,
              effects: Mapping[str, Mapping[str, Any] | None] | None = None,
              orientation: str | None = None, decimate: int = 1,
-             loss: Mapping[str, Any] | None = None) -> Simulation:
+             loss: Mapping[str, Any] | None = None, noise_seed: int | None = None) -> Simulation:
     """Simulate a static three-axis MEMS gyro in a thermal chamber.
 
     Parameters
@@ -50,10 +50,13 @@ def simulate(profile: str = "paper", fs_hz: float = 10.0, seed: int = 0, sensor_
     fs_hz
         Sampling rate, Hz.
     seed
-        Seed of everything that is not the sensor: the random profile, the noise, the temperature
-        reading, the accelerometer, the effects' auxiliary channels.
+        Seed of everything that is not the sensor: the random profile, the noise (unless
+        ``noise_seed``), the effects' auxiliary channels, the lost rows.
     sensor_seed
         Seed of the sensor's coefficients (:func:`gyronet.sim.sensor.draw_sensor`).
+    noise_seed
+        Seed of the gyro's, the temperature reading's and the accelerometer's noise (default ``seed``):
+        two sensors in one chamber run share its history, not its noise.
     duration_s
         Record length, s (see :func:`gyronet.sim.profiles.chamber_profile`).
     profile_options
@@ -83,6 +86,7 @@ def simulate(profile: str = "paper", fs_hz: float = 10.0, seed: int = 0, sensor_
     temp_spec = as_spec(TemperatureSpec, temperature, "temperature")
     earth_spec = as_spec(EarthSpec, earth, "earth")
     accel_spec = as_spec(AccelSpec, accel, "accel")
+    noise_seed = int(seed if noise_seed is None else noise_seed)
     time_s, chamber_c = chamber_profile(profile, fs_hz, np.random.default_rng([int(seed), 1]),
                                         duration_s=duration_s, **dict(profile_options or {}))
     n = len(time_s)
@@ -96,7 +100,7 @@ def simulate(profile: str = "paper", fs_hz: float = 10.0, seed: int = 0, sensor_
     if bias_std_dps is None:  # the sensor's own spread (zero but for the survey distribution), its own draw
         bias_std_dps = model.turn_on_bias_std_dps
     die_c = model.die_temperature_c(time_s, chamber_c, fs_hz)
-    temp_rng = np.random.default_rng([int(seed), 2])
+    temp_rng = np.random.default_rng([noise_seed, 2])
     temp_c = quantise(die_c + temp_spec.noise_c * temp_rng.standard_normal(n), temp_spec.lsb_c)
 
     drift = model.history_drift_dps(time_s, die_c, fs_hz)
@@ -132,12 +136,12 @@ def simulate(profile: str = "paper", fs_hz: float = 10.0, seed: int = 0, sensor_
     earth_dps = earth_rate_dps(earth_spec.latitude_deg, turned_deg, earth_spec.rate_deg_hr)
     true_rate = earth_dps[None, :] + rate_steps_dps(time_s, rate_steps)
     ideal = true_rate + drift
-    gyro = quantise(ideal + gyro_noise_dps(n, fs_hz, noise_spec, seed), noise_spec.lsb_dps)
+    gyro = quantise(ideal + gyro_noise_dps(n, fs_hz, noise_spec, noise_seed), noise_spec.lsb_dps)
     added_noise = gyro - ideal  # the noise actually added, quantisation error included
 
     recording = {"time_s": time_s, "temp_c": temp_c, **_columns("gyro", gyro)}
     if accel_spec.enabled:
-        acc_rng = np.random.default_rng([int(seed), 4])
+        acc_rng = np.random.default_rng([noise_seed, 4])
         acc = gravity_g(turned_deg)[None, :] \
             + accel_spec.noise_g * acc_rng.standard_normal((n, N_AXES))
         recording.update(_columns("acc", quantise(acc, accel_spec.lsb_g), suffix="_g"))
@@ -165,6 +169,8 @@ def simulate(profile: str = "paper", fs_hz: float = 10.0, seed: int = 0, sensor_
         meta["sensor_distribution"] = sensor["distribution"]
     if int(decimate) != 1:
         meta["decimated_from_hz"] = f"{fs_hz:g}"
+    if noise_seed != int(seed):
+        meta["noise_seed"] = str(noise_seed)
     log.info("simulated %d samples (%.2f h, profile %s, effects %s)", len(recording["time_s"]),
              n / fs_hz / 3600, profile, meta["effects"])
     run = {"turn_on_bias_dps": run_parts["turn_on_bias"][0].tolist()} if "turn_on_bias" in run_parts else {}

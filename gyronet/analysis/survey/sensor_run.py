@@ -88,6 +88,7 @@ class SurveySpec:
     def fingerprint(self) -> str:
         """A hash of everything that decides a sensor's result (``keep_records`` aside): resumed only if equal."""
         settings = {k: v for k, v in dataclasses.asdict(self).items() if k != "keep_records"}
+        settings["noise"] = "each sensor its own"  # results from before that shared one noise draw: not resumed
         return hashlib.sha256(json.dumps(settings, sort_keys=True, default=str).encode()).hexdigest()[:16]
 
 
@@ -107,9 +108,12 @@ def simulate_history(folder: Path, name: str, sensor_seed: int, history: History
 
     options = dict(spec.simulate)
     sensor = {"distribution": spec.distribution, **dict(options.pop("sensor", {}) or {})}
+    # one chamber history for every sensor, but each sensor its own noise: else the start-up offset's
+    # noise, a constant over the run, would be one draw shared by the whole survey
+    noise_seed = int(np.random.SeedSequence([history.seed, sensor_seed]).generate_state(1)[0])
     sim = simulate(profile=history.profile, seed=history.seed, sensor_seed=sensor_seed, fs_hz=spec.fs_hz,
                    duration_s=history.duration_s, profile_options=dict(history.profile_options), sensor=sensor,
-                   **options)
+                   noise_seed=noise_seed, **options)
     path = folder / f"{name}.csv"
     write_simulation(sim, path)
     return path
