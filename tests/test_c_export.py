@@ -204,9 +204,15 @@ def test_c_matches_compensate_py_with_a_startup_offset(bundles, paper_csv, tmp_p
     c_out = _run_c(exe, columns, [], tmp_path, still_s=600.0)
     error = np.abs(c_out[:, :3] - np.column_stack([py[c] for c in GYRO_COLUMNS]))
     assert error.max() < TOL_DPS
+    # the error bar with the offset's own noise from the window's end on, as compensate.py writes it
+    sigma = np.column_stack([py[f"drift_sigma_{a}_dps"] for a in "xyz"])
+    np.testing.assert_allclose(c_out[:, 4:7], sigma, rtol=1e-4, atol=1e-6)
     # the offset is really applied: without it the output differs by far more than the tolerance
     plain = _run_c(exe, columns, [], tmp_path)
     assert np.abs(plain[2000:, :3] - c_out[2000:, :3]).max() > 10 * TOL_DPS
+    # and so is its noise, in the bar from the window's end on only (this bundle's bar had no window)
+    after = columns["time_s"] - columns["time_s"][0] >= 600.0
+    assert np.all(c_out[after, 4:7] > plain[after, 4:7]) and np.array_equal(c_out[~after, 4:7], plain[~after, 4:7])
 
 
 def test_state_size_and_symbols(bundles, tmp_path):

@@ -35,6 +35,50 @@ def test_the_window_mean_is_removed_after_the_window_and_only_after():
     assert startup.done
 
 
+def test_the_offsets_noise_is_the_window_means_and_widens_only_what_follows():
+    """White noise of 0.1 deg/s on a slow drift: the offset's error is 0.1 / sqrt(n), the bar grows by it."""
+    rng = np.random.default_rng(2)
+    time_s = np.arange(0.0, 2000.0, 0.5)
+    rate = rng.normal(0, [0.1, 0.2, 0.05], (len(time_s), 3)) + 1e-4 * time_s[:, None]
+    startup = StartupOffset(still_s=600)
+    chunks = [startup.process(time_s[i:i + 333], rate[i:i + 333]) for i in range(0, len(time_s), 333)]
+    assert np.vstack(chunks).shape == rate.shape
+    np.testing.assert_allclose(np.sqrt(startup.noise_var_dps2), np.array([0.1, 0.2, 0.05]) / np.sqrt(1200), rtol=0.06)
+    sigma = np.full((len(time_s), 3), 0.003)
+    wide = startup.widen(time_s, sigma)
+    after = time_s >= 600
+    np.testing.assert_array_equal(wide[~after], sigma[~after])
+    np.testing.assert_allclose(wide[after], np.broadcast_to(np.sqrt(0.003 ** 2 + startup.noise_var_dps2), (after.sum(), 3)))
+    whole = StartupOffset(still_s=600)
+    whole.process(time_s, rate)  # chunks or not, the same differences
+    np.testing.assert_allclose(whole.noise_var_dps2, startup.noise_var_dps2, rtol=1e-12)
+
+
+def test_the_bar_widens_by_the_offsets_noise_unless_its_runs_were_scored_with_one(bundle, biased_csv):
+    """Batch and row by row alike; a campaign bar calibrated with a start-up window has that noise already."""
+    columns = {k: v[:2000] for k, v in load_recording(biased_csv).columns.items()}
+    after = columns["time_s"] - columns["time_s"][0] >= 120
+
+    def sigma(still_s: float, startup_s: float = 0.0, rows: bool = False) -> np.ndarray:
+        comp = Compensator.load(bundle)
+        comp.error_bar.calibration["startup_s"] = startup_s
+        comp.use_startup(still_s=still_s)
+        if not rows:
+            return comp.process(columns).drift_sigma_dps
+        out = comp.process({k: v[:300] for k, v in columns.items()}).drift_sigma_dps.tolist()
+        comp.use_small_chunks()
+        for i in range(300, len(columns["time_s"])):
+            row = comp.process_row(float(columns["time_s"][i]), {k: float(v[i]) for k, v in columns.items() if k != "time_s"})
+            out.append(row.drift_sigma_dps)
+        return np.array(out)
+
+    plain, widened = sigma(0.0), sigma(120.0)
+    np.testing.assert_array_equal(widened[~after], plain[~after])
+    assert np.all(widened[after] > plain[after])
+    np.testing.assert_allclose(sigma(120.0, rows=True), widened, rtol=1e-12)
+    np.testing.assert_array_equal(sigma(120.0, startup_s=120.0), plain)
+
+
 def test_one_call_equals_one_call_per_sample_with_a_bundle(bundle, biased_csv):
     recording = load_recording(biased_csv)
     whole = Compensator.load(bundle)

@@ -62,6 +62,7 @@ class Compensator:
         self.n_bad_input = 0  # rows flagged ``bad_input`` since reset()
         self._last_rate_dps: np.ndarray | list | None = None  # the last output row: what a bad gyro value becomes
         self.startup = None  # gyronet.bundle.startup.StartupOffset: the run's offset from its first still seconds
+        self._widen_for_offset = False  # add the offset's noise to drift_sigma (use_startup)
         self._row_model = None  # the model on one row of floats, for chunks of a few rows (use_small_chunks)
 
     @classmethod
@@ -154,7 +155,9 @@ class Compensator:
         from gyronet.bundle.startup import StartupOffset
 
         self.startup = StartupOffset(still_s, motion_dps, static_rate_dps or (0.0, 0.0, 0.0)) if still_s else None
-        calibrated_s = 0.0 if self.error_bar is None else float(self.error_bar.calibration.get("startup_s") or 0.0)
+        calibrated_s = 0.0 if self.error_bar is None else self.error_bar.startup_s
+        # a bar calibrated on held-out runs with their start-up offsets has the offset's noise in its floor
+        self._widen_for_offset = self.startup is not None and self.error_bar is not None and not calibrated_s
         if calibrated_s > 0 and not still_s:
             log.warning("the error bar was calibrated with a start-up offset over the first %g s; without one "
                         "(startup.still_s=0) the run's turn-on bias is in the error and not in drift_sigma: use "
@@ -210,6 +213,8 @@ class Compensator:
             # flagged rows stay out of the start-up window's mean; stage_skipping replaces bad values afterwards
             held_dps = residual_dps if bad_dps is None else np.where(bad_dps, 0.0, residual_dps)
             residual_dps = self.startup.process(columns["time_s"], held_dps, ~bad_input if bad_input.any() else None)
+            if self._widen_for_offset:
+                sigma_dps = self.startup.widen(columns["time_s"], sigma_dps)
         if bad_input.any():
             rate_dps, self._last_rate_dps = stage_skipping(self.kalman, residual_dps, bad_input, bad_dps,
                                                            self._last_rate_dps)
@@ -237,6 +242,8 @@ class Compensator:
         rate_dps = [g - d for g, d in zip(gyro_dps, drift_dps)]
         if self.startup is not None:
             rate_dps = [r - o for r, o in zip(rate_dps, self.startup.offset_dps.tolist())]
+            if self._widen_for_offset:
+                sigma_dps = [math.sqrt(s * s + v) for s, v in zip(sigma_dps, self.startup.noise_var_dps2.tolist())]
         if self.kalman is not None:
             # a rejected row gets the filter's estimate but stays out of its state (gyronet.recordings.skipping)
             run = self.kalman.peek if rejected else self.kalman.process

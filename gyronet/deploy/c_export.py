@@ -39,6 +39,7 @@ _STATE = [
     ("double", "offset_still_s", 1, "start-up offset window"),
     ("double", "offset_start_s", 1, ""),
     ("double", "offset_sum_dps", 3, ""),
+    ("double", "offset_diff_sq", 3, "the window's squared first differences: its noise"),
     ("double", "watch_times", 33, "the rate watch (gyronet/recordings/rate_watch.py): the last SPAN + 1 stamps, a ring"),
     ("double", "watch_vote_times", 32, "the stamp of each of the last VOTES voting samples, a ring"),
     ("double", "watch_period_s", 1, "the sample period the stamps show (0: not yet, the bundle's)"),
@@ -48,6 +49,8 @@ _STATE = [
     ("float", "guard_temp_c", 1, ""),
     ("float", "candidate_temp_c", 1, ""),
     ("float", "offset_dps", 3, "subtracted before the Kalman stage"),
+    ("float", "offset_last_dps", 3, "the window's last good sample"),
+    ("float", "offset_var_dps2", 3, "the offset's noise variance, added to the error bar (WIDEN_FOR_OFFSET)"),
     ("float", "static_rate_dps", 3, ""),
     ("float", "last_out_dps", 3, "what a bad gyro axis becomes"),
     ("float", "drift_sigma_dps", 3, "the last sample's 1-sigma error bar of the removed drift (NaN: none)"),
@@ -55,6 +58,7 @@ _STATE = [
     ("float", "kalman_p", "n_kalman_p", "its covariance blocks, during the gain transient"),
     ("uint32_t", "kalman_n", 1, "samples filtered, up to the end of the gain transient"),
     ("uint32_t", "offset_count", 1, ""),
+    ("uint32_t", "offset_n_diff", 1, ""),
     ("uint32_t", "n_out_of_range", 1, "counts since init"),
     ("uint32_t", "n_bad_input", 1, ""),
     ("int", "started", 1, ""),
@@ -132,6 +136,7 @@ def write_c(bundle_dir: Path, out_dir: Path) -> dict[str, Any]:
         "CONSTANTS": "\n".join(part for part in (feats.constants, model.constants, bar.constants, kalman.constants)
                                if part),
         "HAS_ERROR_BAR": str(int(compensator.error_bar is not None)),
+        "WIDEN_FOR_OFFSET": str(int(compensator.error_bar is not None and not compensator.error_bar.startup_s)),
         "ERROR_BAR_MEMBERS": "" if not bar.members_body else (
             "/* the error bar's members: every start's drift side by side */\n"
             "static void members_drift(const float *x, float *members)\n{\n" + bar.members_body + "\n}\n"),

@@ -76,6 +76,11 @@ class ErrorBar:
         self._row_members = None
         self._scripted = None  # the members network, scripted and frozen on first use
 
+    @property
+    def startup_s(self) -> float:
+        """The start-up window its held-out runs were scored with (0: none, so a window's offset noise is not in it)."""
+        return float(self.calibration.get("startup_s") or 0.0)
+
     # -- evaluation -------------------------------------------------------------------------------
 
     def member_drift(self, features: np.ndarray) -> np.ndarray:
