@@ -159,7 +159,7 @@ def train_run(data: DriftData, model: torch.nn.Module, optim: Callable | None, o
     meta = _meta(model, data)
     if folds is None and "error_bar" in meta:
         log.warning("error bar: calibrated on held-out time blocks of this one recording; on a real sensor's next "
-                    "run the error was 5-20x the bar (docs/results/error-bars.md). Train on two or more runs "
+                    "run the error was 3-15x the bar (docs/results/error-bars.md). Train on two or more runs "
                     "(data.paths) for a bar checked on a run it was not calibrated on")
     bundle_dir = save_bundle(model, meta, out_dir / "compensator", kalman_stage(kalman_cfg, model, data))
     evaluations = evaluate_paths(bundle_dir, eval_paths, eval_block_s)
