@@ -123,6 +123,24 @@ def test_each_survey_sensor_has_its_own_noise_on_the_shared_history(tmp_path):
     assert not np.allclose(truths[0]["noise_x_dps"], truths[1]["noise_x_dps"])
 
 
+def test_a_perfect_drift_model_deployed_with_a_start_up_offset_scores_the_floor():
+    """The deployed floor has the window's noise in it: else a perfect model would score above 1."""
+    from gyronet.analysis.survey.sensor_run import deployed_floor_truth
+    from gyronet.training.evaluate import residual_report
+
+    sim = simulate("random", 1.0, seed=2, sensor_seed=5, duration_s=7200, sensor={"distribution": "survey"})
+    truth, time_s = sim.truth, sim.recording["time_s"]
+    keep = time_s >= time_s[0] + 600
+    rate = np.column_stack([sim.recording[f"gyro_{a}_dps"] - truth[f"drift_{a}_dps"] for a in AXES])
+    true_rate = np.column_stack([truth[f"true_rate_{a}_dps"] for a in AXES])
+    deployed = rate - (rate - true_rate)[~keep].mean(0)  # the offset of a still window, the true rate removed
+    kept = {k: v[keep] for k, v in truth.items()}
+    on_deployed_floor = residual_report(time_s[keep], deployed[keep], deployed_floor_truth(truth, keep))
+    on_plain_floor = residual_report(time_s[keep], deployed[keep], kept)
+    assert [on_deployed_floor["ratio_to_floor"][a] for a in AXES] == pytest.approx([1, 1, 1], abs=1e-12)
+    assert all(on_plain_floor["ratio_to_floor"][a] != pytest.approx(1, abs=1e-4) for a in AXES)
+
+
 TINY = ["n_sensors=2", "jobs=1", "fs_hz=1", "startup_s=300", "progress=false",
         'train_overrides=["train.max_epochs=40","train.patience=20"]',
         "+train_history.profile_options.dwell_s=300", "+train_history.profile_options.rate_c_per_min=4",
