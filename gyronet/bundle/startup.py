@@ -71,7 +71,7 @@ class StartupOffset:
         self.noise_var_dps2: np.ndarray | None = None  # of the offset: the window mean's white noise
         self._sums = np.zeros((self.n_bins, 3))
         self._counts = np.zeros(self.n_bins, dtype=np.int64)
-        self._diff_sq, self._n_diff, self._last = np.zeros(3), 0, None
+        self._diff_sq, self._last = np.zeros(3), None
 
     @property
     def done(self) -> bool:
@@ -121,7 +121,6 @@ class StartupOffset:
             return
         steps = np.diff(rate_dps if self._last is None else np.vstack([self._last, rate_dps]), axis=0)
         self._diff_sq += (steps ** 2).sum(0)
-        self._n_diff += len(steps)
         self._last = rate_dps[-1].copy()
 
     def require_done(self, source: str) -> None:
@@ -148,7 +147,7 @@ class StartupOffset:
                 f"{self.still_s:g} s, or lower startup.still_s")
         # offset = mean(gyro - drift) - static rate, over every window sample
         self.offset_dps = self._sums.sum(0) / counts.sum() - self.static_rate_dps
-        self.noise_var_dps2 = self._diff_sq / (2.0 * max(self._n_diff, 1)) / counts.sum()
+        self.noise_var_dps2 = self._diff_sq / (2.0 * max(counts.sum() - 1, 1)) / counts.sum()
         log.info("start-up offset over the first %g s (%d samples): %s deg/s, its noise %s mdps", self.still_s,
                  int(counts.sum()), ", ".join(f"{a}={v:+.4g}" for a, v in zip("xyz", self.offset_dps)),
                  "/".join(f"{1e3 * v:.2g}" for v in np.sqrt(self.noise_var_dps2)))

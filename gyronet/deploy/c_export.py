@@ -58,7 +58,6 @@ _STATE = [
     ("float", "kalman_p", "n_kalman_p", "its covariance blocks, during the gain transient"),
     ("uint32_t", "kalman_n", 1, "samples filtered, up to the end of the gain transient"),
     ("uint32_t", "offset_count", 1, ""),
-    ("uint32_t", "offset_n_diff", 1, ""),
     ("uint32_t", "n_out_of_range", 1, "counts since init"),
     ("uint32_t", "n_bad_input", 1, ""),
     ("int", "started", 1, ""),
