@@ -276,9 +276,21 @@ def test_fractional_power_is_refused():
         feature_code([{"kind": "temp"}, {"kind": "power", "exponent": 1.5}], 2.0, [], "b")
 
 
-# Needs scripts/export.py, which comes from branch px4 (it dispatches format=c to write_c): skipped
-# until that branch is merged; the lead checks that it passes after the merge.
-@pytest.mark.skipif(not (ROOT / "scripts" / "export.py").exists(), reason="scripts/export.py arrives with branch px4")
+def test_head_spans_hold_every_nonzero_weight_in_order():
+    """The C stores each output row's span of nonzero weights: the dense head comes back from it, zero rows too."""
+    from gyronet.deploy.c._model import head_spans
+
+    head = np.array([[0.0, 1.5, 0.0, -2.0, 0.0],   # a gap inside the span is kept
+                     [0.0, 0.0, 0.0, 0.0, 0.0],    # an axis below the full level: no Gaussians
+                     [3.0, 0.0, 0.0, 0.0, 0.25]])
+    weights, first, at = head_spans(head)
+    assert at == [0, 3, 3, 8] and first == [1, 0, 0]
+    dense = np.zeros_like(head)
+    for a in range(len(head)):
+        dense[a, first[a]:first[a] + at[a + 1] - at[a]] = weights[at[a]:at[a + 1]]
+    np.testing.assert_array_equal(dense, head)
+
+
 def test_export_command_writes_c(bundle, tmp_path):
     out = tmp_path / "fw"
     proc = subprocess.run([sys.executable, str(ROOT / "scripts" / "export.py"), f"model={bundle}", "format=c",

@@ -103,17 +103,38 @@ def _rbf_c(p: dict[str, Any], prefix: str = "M_", n_out: int = 3, out: str = "dr
     return constants, "\n".join(wrapped)
 
 
+def head_spans(head: np.ndarray) -> tuple[np.ndarray, list[int], list[int]]:
+    """The output weights (rows, centres) as each row's span from its first to its last nonzero weight, end to end:
+    the weights, each row's first centre, and where each row starts in the weights (rows + 1 offsets).
+
+    The error bar's members sit side by side, each reading only its own start's Gaussians: stored
+    dense, two thirds of their weights were zeros (1.6 KB of a 9.7 KB object). The C sums only the
+    spans, in the order of the centres, so it skips zero terms only: the same drift to the last bit.
+    """
+    first, at, parts = [], [0], []
+    for row in head:
+        nonzero = np.flatnonzero(row)
+        lo, hi = (int(nonzero[0]), int(nonzero[-1]) + 1) if len(nonzero) else (0, 0)
+        first.append(lo)
+        at.append(at[-1] + hi - lo)
+        parts.append(row[lo:hi])
+    return np.concatenate([*parts, np.zeros(0)]), first, at
+
+
 def _rbf_group_c(p: dict[str, Any], prefix: str, n_out: int, out: str) -> tuple[str, str]:
     n_in, (n_c, n_r) = len(p["mean"]), p["centers"].shape
     m = prefix
+    weights, first, at = head_spans(p["head"])
     constants = [f"static const float {m}MEAN[{n_in}] = {c_array(p['mean'])};",
                  f"static const float {m}INV_STD[{n_in}] = {c_array(p['inv_std'])};",
                  f"static const unsigned char {m}RBF_INDEX[{n_r}] = {{{', '.join(map(str, p['index']))}}};",
                  f"static const float {m}CENTERS[{n_c}][{n_r}] = {c_array(p['centers'])};",
                  f"static const float {m}NEG_HALF_INV_W2[{n_c}] = {c_array(p['neg_half_inv_w2'])};",
-                 f"static const float {m}HEAD[{n_out}][{n_c}] = {c_array(p['head'])};",
+                 f"static const float {m}HEAD[{max(len(weights), 1)}] = {c_array(weights)};",
+                 f"static const unsigned short {m}HEAD_FROM[{n_out}] = {{{', '.join(map(str, first))}}};",
+                 f"static const unsigned short {m}HEAD_AT[{n_out + 1}] = {{{', '.join(map(str, at))}}};",
                  f"static const float {m}BIAS[{n_out}] = {c_array(p['bias'])};"]
-    body = [f"    float z[{n_in}], zc[{n_in}], r, sq, phi;", "    int i, j, k, a;",
+    body = [f"    float z[{n_in}], zc[{n_in}], r, sq, phi[{n_c}];", "    int i, j, k, a;",
             f"    for (i = 0; i < {n_in}; ++i) {{", f"        z[i] = (x[i] - {m}MEAN[i]) * {m}INV_STD[i];"]
     if p["clamp"]:
         constants += [f"static const float {m}Z_LOW[{n_in}] = {c_array(p['low'])};",
@@ -127,8 +148,10 @@ def _rbf_group_c(p: dict[str, Any], prefix: str, n_out: int, out: str) -> tuple[
              "    /* phi_k = exp(-|r - c_k|^2 / (2 w_k^2)) */",
              f"    for (k = 0; k < {n_c}; ++k) {{", "        sq = 0.0f;",
              f"        for (j = 0; j < {n_r}; ++j) {{", f"            r = zc[{m}RBF_INDEX[j]] - {m}CENTERS[k][j];",
-             "            sq += r * r;", "        }", f"        phi = expf(sq * {m}NEG_HALF_INV_W2[k]);",
-             f"        for (a = 0; a < {n_out}; ++a) {{", f"            {out}[a] += {m}HEAD[a][k] * phi;", "        }", "    }"]
+             "            sq += r * r;", "        }", f"        phi[k] = expf(sq * {m}NEG_HALF_INV_W2[k]);", "    }",
+             "    /* each output's weights over its span of Gaussians, in the order of k */",
+             f"    for (a = 0; a < {n_out}; ++a) {{", f"        for (k = {m}HEAD_AT[a]; k < {m}HEAD_AT[a + 1]; ++k) {{",
+             f"            {out}[a] += {m}HEAD[k] * phi[{m}HEAD_FROM[a] + k - {m}HEAD_AT[a]];", "        }", "    }"]
     if p["linear"] is not None:
         constants.append(f"static const float {m}LINEAR[{n_out}][{n_in}] = {c_array(p['linear'])};")
         body += [f"    for (a = 0; a < {n_out}; ++a) {{", f"        for (i = 0; i < {n_in}; ++i) {{",
