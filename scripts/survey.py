@@ -43,7 +43,7 @@ def main(cfg: DictConfig) -> None:
     check_distribution(cfg.distribution)
     methods = {str(name): _method(str(model), list(cfg.train_overrides)) for name, model in cfg.methods.items()}
     for key in ("ours", "reference"):
-        if cfg[key] not in methods:
+        if cfg[key] not in methods and not (key == "reference" and cfg[key] is None):
             raise GyronetError(f"{key}={cfg[key]} is not one of the methods ({', '.join(methods)})")
     histories = {k: History(**OmegaConf.to_container(cfg[k], resolve=True)) for k in ("train_history", "check_history")}
     spec = SurveySpec(methods=methods, distribution=cfg.distribution, fs_hz=cfg.fs_hz, startup_s=cfg.startup_s,

@@ -196,6 +196,12 @@ def test_the_survey_command_writes_its_table_and_resumes(tmp_path, monkeypatch, 
         failed, everything["settings"])
     with pytest.raises(GyronetError, match="every sensor of the survey failed; the first: boom"):
         summarize([{"sensor_seed": 7, "error": "boom"}], "gyronet", "PX4-cubic")
+    # no reference (reference=null, a survey of gyronet alone): the same figures, no goal against another method
+    alone = summarize(sensors, "gyronet", None)
+    assert alone["vs_reference"] is None and set(alone["met"]) == {"p90", "worst"}
+    assert alone["rows"] == summarize(sensors, "gyronet", "PX4-cubic")["rows"]
+    assert "better than" not in to_markdown(alone, everything["settings"])
+    assert all("/PX4" not in m and "/None" not in m for missed in alone["misses"].values() for m in missed)
     # resumed: run again, both sensors are read back as they were (no new training), the same table
     results = sorted(out.glob("sensors/*/result.json"))
     stamps = [p.stat().st_mtime_ns for p in results]

@@ -34,7 +34,7 @@ def worst_axis(result: Mapping[str, Any], method: str, variant: str = "deployed"
     return float(max(result["methods"][method][variant]))
 
 
-def summarize(results: Sequence[Mapping[str, Any]], ours: str, reference: str,
+def summarize(results: Sequence[Mapping[str, Any]], ours: str, reference: str | None,
               goals: Mapping[str, float] | None = None) -> dict[str, Any]:
     """Every method's median, 90th percentile and worst over the sensors, the ratio to the reference, the goals.
 
@@ -43,7 +43,7 @@ def summarize(results: Sequence[Mapping[str, Any]], ours: str, reference: str,
     results
         :func:`gyronet.analysis.survey.sensor_run.run_sensor` results, one per sensor.
     ours, reference
-        The method the goals are about and the one it must beat (the PX4 cubic).
+        The method the goals are about and the one it must beat (the PX4 cubic; None: no comparison).
     goals
         ``p90_max``, ``worst_max`` (residual / floor of the worst axis, ``deployed``) and
         ``vs_reference_max`` (ours / reference, worst axis, every sensor).
@@ -68,10 +68,12 @@ def summarize(results: Sequence[Mapping[str, Any]], ours: str, reference: str,
             rows.append({"method": method, "variant": variant, "median": float(np.median(values)),
                          "p90": float(np.percentile(values, 90)), "worst": float(values.max()),
                          "worst_sensor": seeds[int(values.argmax())]})
-    ratios = np.array([worst_axis(r, ours) / worst_axis(r, reference) for r in results])
     ours_worst = np.array([worst_axis(r, ours) for r in results])
-    vs_reference = {"worst": float(ratios.max()), "median": float(np.median(ratios)),
-                    "worst_sensor": seeds[int(ratios.argmax())]}
+    # no reference (a survey of one method): no ratio, and no goal against it
+    ratios = (np.zeros(len(results)) if reference is None else
+              np.array([worst_axis(r, ours) / worst_axis(r, reference) for r in results]))
+    vs_reference = None if reference is None else {"worst": float(ratios.max()), "median": float(np.median(ratios)),
+                                                   "worst_sensor": seeds[int(ratios.argmax())]}
     misses: dict[int, list[str]] = {}
     for seed, value, ratio in zip(seeds, ours_worst, ratios):
         missed = [f"{value:.2f}x > {goals['p90_max']:g}x"] if value > goals["p90_max"] else []
@@ -80,8 +82,9 @@ def summarize(results: Sequence[Mapping[str, Any]], ours: str, reference: str,
         if missed:
             misses[seed] = missed
     ours_row = next(r for r in rows if r["method"] == ours and r["variant"] == "deployed")
-    met = {"p90": ours_row["p90"] <= goals["p90_max"], "worst": ours_row["worst"] <= goals["worst_max"],
-           "vs_reference": vs_reference["worst"] <= goals["vs_reference_max"]}
+    met = {"p90": ours_row["p90"] <= goals["p90_max"], "worst": ours_row["worst"] <= goals["worst_max"]}
+    if vs_reference is not None:
+        met["vs_reference"] = vs_reference["worst"] <= goals["vs_reference_max"]
     return {"n_sensors": len(results), "failed": failed, "seeds": seeds, "ours": ours, "reference": reference, "rows": rows,
             "vs_reference": vs_reference, "goals": goals, "met": met, "misses": misses,
             "error_bar": error_bar_summary(results, ours),
@@ -122,12 +125,16 @@ def to_markdown(summary: Mapping[str, Any], settings: Mapping[str, Any]) -> str:
     def mark(ok: bool) -> str:
         return "met" if ok else "NOT met"
 
-    lines += ["", f"{ours} / {reference}, worst axis, as deployed: worst sensor {vs['worst']:.3f} "
-                  f"(sensor {vs['worst_sensor']}), median {vs['median']:.3f}.", "",
-              f"Goals for {ours}, as deployed: 90th percentile <= {goals['p90_max']:g}x: {mark(met['p90'])} "
-              f"({ours_row['p90']:.2f}); worst <= {goals['worst_max']:g}x: {mark(met['worst'])} "
-              f"({ours_row['worst']:.2f}); every sensor at least {1 / goals['vs_reference_max']:.3g}x better than "
-              f"{reference}: {mark(met['vs_reference'])} (worst ratio {vs['worst']:.3f}).", ""]
+    goal_text = (f"Goals for {ours}, as deployed: 90th percentile <= {goals['p90_max']:g}x: {mark(met['p90'])} "
+                 f"({ours_row['p90']:.2f}); worst <= {goals['worst_max']:g}x: {mark(met['worst'])} "
+                 f"({ours_row['worst']:.2f})")
+    if vs is None:
+        lines += ["", goal_text + ".", ""]
+    else:
+        lines += ["", f"{ours} / {reference}, worst axis, as deployed: worst sensor {vs['worst']:.3f} "
+                      f"(sensor {vs['worst_sensor']}), median {vs['median']:.3f}.", "",
+                  goal_text + f"; every sensor at least {1 / goals['vs_reference_max']:.3g}x better than "
+                  f"{reference}: {mark(met['vs_reference'])} (worst ratio {vs['worst']:.3f}).", ""]
     bar = summary.get("error_bar")
     if bar:
         asks = bar["recalibrate_sensors"]
