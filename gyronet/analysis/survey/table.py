@@ -128,13 +128,12 @@ def to_markdown(summary: Mapping[str, Any], settings: Mapping[str, Any]) -> str:
     goal_text = (f"Goals for {ours}, as deployed: 90th percentile <= {goals['p90_max']:g}x: {mark(met['p90'])} "
                  f"({ours_row['p90']:.2f}); worst <= {goals['worst_max']:g}x: {mark(met['worst'])} "
                  f"({ours_row['worst']:.2f})")
-    if vs is None:
-        lines += ["", goal_text + ".", ""]
-    else:
+    if vs is not None:
         lines += ["", f"{ours} / {reference}, worst axis, as deployed: worst sensor {vs['worst']:.3f} "
-                      f"(sensor {vs['worst_sensor']}), median {vs['median']:.3f}.", "",
-                  goal_text + f"; every sensor at least {1 / goals['vs_reference_max']:.3g}x better than "
-                  f"{reference}: {mark(met['vs_reference'])} (worst ratio {vs['worst']:.3f}).", ""]
+                      f"(sensor {vs['worst_sensor']}), median {vs['median']:.3f}."]
+        goal_text += (f"; every sensor at least {1 / goals['vs_reference_max']:.3g}x better than {reference}: "
+                      f"{mark(met['vs_reference'])} (worst ratio {vs['worst']:.3f})")
+    lines += ["", goal_text + ".", ""]
     bar = summary.get("error_bar")
     if bar:
         asks = bar["recalibrate_sensors"]
