@@ -65,7 +65,8 @@ def main(cfg: DictConfig) -> None:
 def _history_text(history: History) -> str:
     extra = f", {history.duration_s:g} s" if history.duration_s else ""
     options = "".join(f", {k}={v}" for k, v in dict(history.profile_options).items())
-    return f"profile={history.profile} seed={history.seed}{extra}{options}"
+    simulate = f", simulate={dict(history.simulate)}" if history.simulate else ""
+    return f"profile={history.profile} seed={history.seed}{extra}{options}{simulate}"
 
 
 if __name__ == "__main__":

@@ -123,6 +123,24 @@ def test_each_survey_sensor_has_its_own_noise_on_the_shared_history(tmp_path):
     assert not np.allclose(truths[0]["noise_x_dps"], truths[1]["noise_x_dps"])
 
 
+def test_a_history_s_own_simulate_settings_change_that_record_alone(tmp_path):
+    """A training record quieter than the one scored: the noise is merged per key over the survey's, the drift kept."""
+    from gyronet.analysis.survey.sensor_run import History, SurveySpec, simulate_history
+    from gyronet.recordings.data import load_truth
+
+    spec = SurveySpec(methods={}, fs_hz=1.0, simulate={"noise": {"lsb_dps": 0.0, "arw_deg_rthr": 3.0}})
+    plain = History("random", 2, duration_s=1800)
+    quiet = History("random", 2, duration_s=1800, simulate={"noise": {"arw_deg_rthr": 1.5}})
+    truths = {}
+    for name, history in (("plain", plain), ("quiet", quiet)):
+        (tmp_path / name).mkdir()
+        truths[name] = load_truth(simulate_history(tmp_path / name, "train", 0, history, spec)).columns
+    np.testing.assert_array_equal(truths["quiet"]["drift_x_dps"], truths["plain"]["drift_x_dps"])
+    ratio = np.std(np.diff(truths["quiet"]["noise_x_dps"])) / np.std(np.diff(truths["plain"]["noise_x_dps"]))
+    assert 0.45 < ratio < 0.55  # half the white noise; the quantisation stays off (the survey's lsb_dps=0 kept)
+    assert spec.fingerprint() != SurveySpec(methods={}, fs_hz=1.0, simulate=spec.simulate, train_history=quiet).fingerprint()
+
+
 def test_a_perfect_drift_model_deployed_with_a_start_up_offset_scores_the_floor():
     """The deployed floor has the window's noise in it: else a perfect model would score above 1."""
     from gyronet.analysis.survey.sensor_run import deployed_floor_truth

@@ -45,12 +45,17 @@ RESULT_FILE = "result.json"
 
 @dataclass(frozen=True)
 class History:
-    """One simulated thermal history: the arguments of :func:`gyronet.sim.simulate` that make it."""
+    """One simulated thermal history: the arguments of :func:`gyronet.sim.simulate` that make it.
+
+    ``simulate`` holds more arguments for this record alone, merged over the survey's own
+    (:attr:`SurveySpec.simulate`): e.g. a training record with less noise than the one scored.
+    """
 
     profile: str = "cycle"
     seed: int = 1
     duration_s: float | None = None
     profile_options: Mapping[str, Any] = field(default_factory=dict)
+    simulate: Mapping[str, Any] = field(default_factory=dict)
 
 
 @dataclass(frozen=True)
@@ -89,6 +94,9 @@ class SurveySpec:
     def fingerprint(self) -> str:
         """A hash of everything that decides a sensor's result (``keep_records`` aside): resumed only if equal."""
         settings = {k: v for k, v in dataclasses.asdict(self).items() if k != "keep_records"}
+        for key in ("train_history", "check_history"):  # results from before the per-record setting still resume
+            if not settings[key]["simulate"]:
+                del settings[key]["simulate"]
         settings["noise"] = "each sensor its own"  # results from before that shared one noise draw: not resumed
         return hashlib.sha256(json.dumps(settings, sort_keys=True, default=str).encode()).hexdigest()[:16]
 
@@ -107,7 +115,7 @@ def simulate_history(folder: Path, name: str, sensor_seed: int, history: History
     """Simulate one history of this sensor into ``folder/name.csv`` (and its truth)."""
     from gyronet.sim import simulate, write_simulation
 
-    options = dict(spec.simulate)
+    options = merged(spec.simulate, history.simulate)
     sensor = {"distribution": spec.distribution, **dict(options.pop("sensor", {}) or {})}
     # one chamber history for every sensor, but each sensor its own noise: else the start-up offset's
     # noise, a constant over the run, would be one draw shared by the whole survey
@@ -118,6 +126,15 @@ def simulate_history(folder: Path, name: str, sensor_seed: int, history: History
     path = folder / f"{name}.csv"
     write_simulation(sim, path)
     return path
+
+
+def merged(base: Mapping[str, Any], extra: Mapping[str, Any]) -> dict[str, Any]:
+    """``base`` with ``extra``'s settings over it, nested mappings merged key by key."""
+    out = dict(base)
+    for key, value in extra.items():
+        both = isinstance(value, Mapping) and isinstance(out.get(key), Mapping)
+        out[key] = merged(out[key], value) if both else value
+    return out
 
 
 def train_method(train_csv: Path, method: Mapping[str, Any], out_dir: Path) -> Path:
