@@ -69,16 +69,17 @@ def summarize(results: Sequence[Mapping[str, Any]], ours: str, reference: str | 
                          "p90": float(np.percentile(values, 90)), "worst": float(values.max()),
                          "worst_sensor": seeds[int(values.argmax())]})
     ours_worst = np.array([worst_axis(r, ours) for r in results])
-    # no reference (a survey of one method): no ratio, and no goal against it
-    ratios = (np.zeros(len(results)) if reference is None else
-              np.array([worst_axis(r, ours) / worst_axis(r, reference) for r in results]))
-    vs_reference = None if reference is None else {"worst": float(ratios.max()), "median": float(np.median(ratios)),
-                                                   "worst_sensor": seeds[int(ratios.argmax())]}
+    vs_reference, ratios = None, [None] * len(results)  # no reference (a survey of one method): no ratio, no goal
+    if reference is not None:
+        ratios = np.array([worst_axis(r, ours) / worst_axis(r, reference) for r in results])
+        vs_reference = {"worst": float(ratios.max()), "median": float(np.median(ratios)),
+                        "worst_sensor": seeds[int(ratios.argmax())]}
     misses: dict[int, list[str]] = {}
     for seed, value, ratio in zip(seeds, ours_worst, ratios):
         missed = [f"{value:.2f}x > {goals['p90_max']:g}x"] if value > goals["p90_max"] else []
         missed += [f"worst goal {goals['worst_max']:g}x"] if value > goals["worst_max"] else []
-        missed += [f"/{reference} {ratio:.2f} > {goals['vs_reference_max']:.2f}"] if ratio > goals["vs_reference_max"] else []
+        if ratio is not None and ratio > goals["vs_reference_max"]:
+            missed.append(f"/{reference} {ratio:.2f} > {goals['vs_reference_max']:.2f}")
         if missed:
             misses[seed] = missed
     ours_row = next(r for r in rows if r["method"] == ours and r["variant"] == "deployed")
