@@ -16,6 +16,7 @@ import torch
 from gyronet.bundle.compensator import Compensator, build_meta
 from gyronet.bundle.io import save_bundle
 from gyronet.recordings.data import AXES, load_recording, load_truth, truth_path
+from gyronet.training import coverage
 from gyronet.training.dataset import DriftData, block_rmse, static_rate_dps
 from gyronet.training.train import evaluate, fit
 
@@ -156,6 +157,10 @@ def train_run(data: DriftData, model: torch.nn.Module, optim: Callable | None, o
         log.info("validation 60 s RMSE over the %d fits tried (starts and seeds): %s", int(metrics["val/fits_tried"]),
                  ", ".join(f"{a} {metrics[f'val/lowest_{a}_dps']:.4g}-{metrics[f'val/highest_{a}_dps']:.4g} deg/s "
                            f"({metrics[f'val/spread_{a}_pct']:.0f} %)" for a in AXES))
+    metrics.update(coverage.thinnest(data))
+    line = coverage.describe(metrics)
+    if line:
+        (log.warning if metrics["data/min_s_per_degc"] < coverage.ENOUGH_S_PER_C else log.info)(line)
     meta = _meta(model, data)
     if folds is None and "error_bar" in meta:
         log.warning("error bar: calibrated on held-out time blocks of this one recording; on a real sensor's next "
