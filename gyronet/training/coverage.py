@@ -9,12 +9,9 @@ the thinnest degC of the record and logs it.
 """
 from __future__ import annotations
 
-import logging
 from typing import Any, Iterable
 
 import numpy as np
-
-log = logging.getLogger(__name__)
 
 BIN_C = 1.0  # the temperature bins the time is counted in
 ENOUGH_S_PER_C = 240.0  # two cycles at 1 degC/min: what met the survey's goals
