@@ -160,7 +160,7 @@ def train_run(data: DriftData, model: torch.nn.Module, optim: Callable | None, o
     metrics.update(coverage.thinnest(data))
     line = coverage.describe(metrics)
     if line:
-        (log.warning if metrics["data/min_s_per_degc"] < coverage.ENOUGH_S_PER_C else log.info)(line)
+        log.info(line)
     meta = _meta(model, data)
     if folds is None and "error_bar" in meta:
         log.warning("error bar: calibrated on held-out time blocks of this one recording; on a real sensor's next "
