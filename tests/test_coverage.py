@@ -37,5 +37,5 @@ def test_the_thinnest_degc_is_named_and_a_thin_record_is_told_what_helps(seconds
     assert figures == {"data/min_s_per_degc": seconds, "data/thinnest_c": 20.0}
     line = coverage.describe({**figures, "val/rmse_dps": 0.01})
     assert line.startswith(f"record: {seconds:.0f} s per degC at the least (20..21 degC)")
-    assert ("second cycle help" in line) == warns
+    assert ("a second cycle helps" in line) == warns
     assert coverage.describe({"val/rmse_dps": 0.01}) is None

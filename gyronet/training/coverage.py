@@ -65,8 +65,8 @@ def describe(figures: dict[str, float]) -> str | None:
     text = (f"record: {figures['data/min_s_per_degc']:.0f} s per degC at the least ({low:g}..{low + BIN_C:g} degC)")
     if figures["data/min_s_per_degc"] < ENOUGH_S_PER_C:
         text += (f"; under {ENOUGH_S_PER_C:.0f} s a knee a few degC wide there is fitted to a share of the noise "
-                 "floor (the survey's sensors: 90th percentile 1.21x the floor at 130 s, 1.14x at 255 s); slower "
-                 "ramps or a second cycle help (docs/guides/record.md)")
+                 "floor (the survey's sensors: 90th percentile 1.21x the floor at 130 s, 1.14x at 255 s); a second "
+                 "cycle helps (docs/guides/record.md)")
     return text
 
 
