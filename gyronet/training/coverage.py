@@ -4,8 +4,9 @@ The drift model's own error at a temperature is the noise of the record averaged
 the record spent there, so it depends on the seconds per degC, not on the sensor's noise: the
 noise floor of a 60 s block scales with the same noise. On the survey's 100 simulated sensors one
 chamber cycle at 1 degC/min (each degC passed twice, about 130 s) left the 90th percentile at 1.21x
-the floor as deployed; two cycles (about 255 s) 1.14x (docs/results/survey.md). ``train.py`` prints
-the thinnest degC of the record and logs it.
+the floor as deployed; two cycles (about 255 s) 1.14x, and so did one cycle with half the noise
+variance in the training record alone (1.16x; docs/results/survey.md). ``train.py`` prints the
+thinnest degC of the record and logs it.
 """
 from __future__ import annotations
 
