@@ -126,18 +126,22 @@ def test_each_survey_sensor_has_its_own_noise_on_the_shared_history(tmp_path):
 def test_a_history_s_own_simulate_settings_change_that_record_alone(tmp_path):
     """A training record quieter than the one scored: the noise is merged per key over the survey's, the drift kept."""
     from gyronet.analysis.survey.sensor_run import History, SurveySpec, simulate_history
-    from gyronet.recordings.data import load_truth
+    from gyronet.recordings.data import load_recording, load_truth
 
     spec = SurveySpec(methods={}, fs_hz=1.0, simulate={"noise": {"lsb_dps": 0.0, "arw_deg_rthr": 3.0}})
     plain = History("random", 2, duration_s=1800)
     quiet = History("random", 2, duration_s=1800, simulate={"noise": {"arw_deg_rthr": 1.5}})
-    truths = {}
+    truths, steps = {}, {}
     for name, history in (("plain", plain), ("quiet", quiet)):
         (tmp_path / name).mkdir()
-        truths[name] = load_truth(simulate_history(tmp_path / name, "train", 0, history, spec)).columns
+        path = simulate_history(tmp_path / name, "train", 0, history, spec)
+        truths[name] = load_truth(path).columns
+        steps[name] = load_recording(path).gyro_dps[:, 0] / 0.00875  # in the default quantisation's steps
     np.testing.assert_array_equal(truths["quiet"]["drift_x_dps"], truths["plain"]["drift_x_dps"])
     ratio = np.std(np.diff(truths["quiet"]["noise_x_dps"])) / np.std(np.diff(truths["plain"]["noise_x_dps"]))
-    assert 0.45 < ratio < 0.55  # half the white noise; the quantisation stays off (the survey's lsb_dps=0 kept)
+    assert 0.45 < ratio < 0.55  # half the white noise
+    for name in steps:  # the survey's lsb_dps=0 kept under the record's own noise setting: not on the default grid
+        assert np.abs(steps[name] - np.round(steps[name])).max() > 0.1, name
     assert spec.fingerprint() != SurveySpec(methods={}, fs_hz=1.0, simulate=spec.simulate, train_history=quiet).fingerprint()
 
 
