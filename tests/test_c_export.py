@@ -182,6 +182,8 @@ def test_c_matches_compensator_on_a_hard_recording(kind, bundles, paper_csv, aux
     print(kind, summary)
     assert summary["kalman"] == kind.startswith("kalman") and summary["aux_inputs"] == ([AUX] if kind == "aux" else [])
     assert summary["error_bar"]
+    if kind.endswith("axis_lag"):  # y's lagged dT/dt reads the unlagged feature's tracker, not one of its own
+        assert (tmp_path / "c" / "gyronet_compensator.c").read_text().count("tracker_step(&s->") == 1
     if kind == "members":  # the spread's code path: every start kept as a member
         import json
 

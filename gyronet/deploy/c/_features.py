@@ -45,6 +45,7 @@ def feature_code(specs: Sequence[Mapping[str, Any]], fs_hz: float, aux: Sequence
     constants, accepted, power_on, timed = [], [], [], []
     n_filter = n_play = 0
     first_rate = None
+    raw_slope_of = {}  # (source, tau_s, max_slope) -> a feature holding that tracker's slope, unlagged
     # v as a fresh filter sees it in a rejected row: the prior temperature, other columns 0 where not finite
     power_on.append("    float w[1 + GYRONET_N_AUX];\n    w[0] = PRIOR_TEMP_C;")
     for k in range(len(aux)):
@@ -63,16 +64,24 @@ def feature_code(specs: Sequence[Mapping[str, Any]], fs_hz: float, aux: Sequence
             max_slope = MAX_TEMP_RATE_C_PER_S if column == "temp_c" else _NO_SLOPE_BOUND
             # alpha = 1 - theta^2, beta = (1 - theta)^2 (gyronet.model.filters.RateTracker); alpha - 1 and
             # beta / dt in float64, which float32 then holds to its full precision
-            constants.append(f"static const tracker_coef TRACKER_{i} = {{{c_float(dt_s)}, {c_float(-theta ** 2)}, "
-                             f"{c_float((1 - theta) ** 2 / dt_s)}, {c_float(tau_s)}, {c_float(max_slope)}}};")
-            accepted.append(f"    if (event != EVENT_NONE) {{\n        tracker_restart(&s->filter[{n_filter}], "
-                            f"&TRACKER_{i}, v[{k}], event, gap_s);\n    }}\n"
-                            f"    x[{i}] = tracker_step(&s->filter[{n_filter}], &TRACKER_{i}, v[{k}]);")
+            lagged = float(spec.get("lag_s", 0.0)) > 0
+            tracker = (column, tau_s, max_slope)
+            if lagged and tracker in raw_slope_of:  # the same tracker on the same input: the same slope, run once
+                slope = f"x[{raw_slope_of[tracker]}]"
+            else:
+                constants.append(f"static const tracker_coef TRACKER_{i} = {{{c_float(dt_s)}, {c_float(-theta ** 2)}, "
+                                 f"{c_float((1 - theta) ** 2 / dt_s)}, {c_float(tau_s)}, {c_float(max_slope)}}};")
+                accepted.append(f"    if (event != EVENT_NONE) {{\n        tracker_restart(&s->filter[{n_filter}], "
+                                f"&TRACKER_{i}, v[{k}], event, gap_s);\n    }}\n"
+                                f"    x[{i}] = tracker_step(&s->filter[{n_filter}], &TRACKER_{i}, v[{k}]);")
+                n_filter += 3
+                slope = f"x[{i}]"
+                if not lagged:
+                    raw_slope_of.setdefault(tracker, i)
             power_on.append(f"    x[{i}] = 0.0f;")
-            n_filter += 3
             first_rate = i if first_rate is None else first_rate
-            if float(spec.get("lag_s", 0.0)) > 0:  # then through a lag (gyronet.model.filters.LaggedRate)
-                constant, statement = _lag_c(f"RATE_LAG_{i}", float(spec["lag_s"]), dt_s, n_filter, f"x[{i}]", i)
+            if lagged:  # then through a lag (gyronet.model.filters.LaggedRate)
+                constant, statement = _lag_c(f"RATE_LAG_{i}", float(spec["lag_s"]), dt_s, n_filter, slope, i)
                 constants.append(constant)
                 accepted.append(statement)
                 n_filter += 2
