@@ -4,6 +4,7 @@ import pytest
 import torch
 
 from gyronet.model.features import PAPER_FEATURES, FeatureExtractor
+from gyronet.model.filters import LaggedRate
 from gyronet.model.rbf import RBFNet
 from gyronet.model.small_model import row_model
 from gyronet.sim.sensor import first_order_lag
@@ -48,6 +49,28 @@ def test_lagged_features_are_the_same_in_one_block_in_chunks_and_row_by_row_acro
     assert np.isfinite(whole).all() and extractor.rate_changes
     np.testing.assert_allclose(chunks, whole, rtol=0, atol=1e-12)
     np.testing.assert_allclose(rows, whole, rtol=0, atol=1e-12)
+
+
+def test_a_lagged_rate_reads_the_unlagged_tracker_and_gives_the_numbers_of_its_own():
+    time_s, temp_c = _temperature(12000)
+    keep = np.ones(len(time_s), dtype=bool)
+    keep[3000:3004] = keep[5000:5400] = False  # bridged, and restarted
+    time_s, temp_c = time_s[keep], temp_c[keep]
+    time_s[time_s > 900.0] = 900.0 + (time_s[time_s > 900.0] - 900.0) * 0.5  # the rate doubles
+    temp_c[7000] = 150.0  # a glitch, rejected
+    columns = {"time_s": time_s, "temp_c": temp_c}
+    shared = FeatureExtractor(SPECS, 10.0)
+    trackers = {id(f.tracker if isinstance(f, LaggedRate) else f) for i, f in shared._filters.items()
+                if SPECS[i]["kind"] == "rate"}
+    assert len(trackers) == 1
+    own = FeatureExtractor([SPECS[4]], 10.0)  # the lagged rate alone runs its own tracker
+    assert not own._filters[0].shared
+    whole = shared.process(columns)
+    assert shared.rate_changes and shared.n_rejected
+    np.testing.assert_array_equal(whole[:, 4], own.process(columns)[:, 0])
+    shared.reset(), own.reset()
+    rows = [shared.process_row(t, {"temp_c": v})[0][4] for t, v in zip(time_s, temp_c)]
+    np.testing.assert_array_equal(rows, [own.process_row(t, {"temp_c": v})[0][0] for t, v in zip(time_s, temp_c)])
 
 
 def _grouped(n_inputs: int = 6):

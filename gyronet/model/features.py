@@ -99,12 +99,17 @@ class FeatureExtractor:
         self.n_rejected = 0
         self._filters.clear()
         self._play.clear()
+        unlagged: dict[tuple[str, float], RateTracker] = {}  # a lagged rate reads these rather than run its own
         for i, spec in enumerate(self.specs):
             if spec["kind"] == "rate":
-                max_slope = MAX_TEMP_RATE_C_PER_S if spec.get("source", "temp_c") == "temp_c" else math.inf
-                self._filters[i] = RateTracker(float(spec.get("tau_s", 5.0)), self.dt_s, max_slope)
+                source, tau_s = spec.get("source", "temp_c"), float(spec.get("tau_s", 5.0))
+                max_slope = MAX_TEMP_RATE_C_PER_S if source == "temp_c" else math.inf
                 if float(spec.get("lag_s", 0.0)) > 0:
-                    self._filters[i] = LaggedRate(self._filters[i], Lag(float(spec["lag_s"]), self.dt_s))
+                    shared = unlagged.get((source, tau_s))
+                    tracker = shared or RateTracker(tau_s, self.dt_s, max_slope)
+                    self._filters[i] = LaggedRate(tracker, Lag(float(spec["lag_s"]), self.dt_s), shared is not None)
+                else:
+                    self._filters[i] = unlagged.setdefault((source, tau_s), RateTracker(tau_s, self.dt_s, max_slope))
             elif spec["kind"] == "lag" or (spec["kind"] == "column" and float(spec.get("tau_s", 0)) > 0):
                 self._filters[i] = Lag(float(spec["tau_s"]), self.dt_s)
 
@@ -153,20 +158,24 @@ class FeatureExtractor:
                  change.old_hz, change.new_hz, change.time_s)
         self.rate_changes.append(change)
         self.dt_s = 1.0 / change.new_hz
+        rebuilt: dict[int, Any] = {}  # id(old) -> new, so a shared tracker stays shared
         for i, old in self._filters.items():
-            self._filters[i] = self._rebuilt(old)
+            self._filters[i] = self._rebuilt(old, rebuilt)
         self._rate_gap = self._last_time_s is not None
 
-    def _rebuilt(self, old: Any) -> Any:
-        """A filter at the new period carrying ``old``'s state over as across a short gap."""
+    def _rebuilt(self, old: Any, rebuilt: dict[int, Any]) -> Any:
+        """A filter at the new period carrying ``old``'s state over as across a short gap (once per object)."""
+        if id(old) in rebuilt:
+            return rebuilt[id(old)]
         if isinstance(old, LaggedRate):
-            return LaggedRate(self._rebuilt(old.tracker), self._rebuilt(old.lag))
-        if isinstance(old, Lag):
+            new = LaggedRate(self._rebuilt(old.tracker, rebuilt), self._rebuilt(old.lag, rebuilt), old.shared)
+        elif isinstance(old, Lag):
             new = Lag(old.tau_s, self.dt_s)
             new.last_y = old.last_y
-            return new
-        new = RateTracker(old.tau_s, self.dt_s, old.max_slope)
-        new.last_level, new.last_slope = old.last_level, old.last_slope
+        else:
+            new = RateTracker(old.tau_s, self.dt_s, old.max_slope)
+            new.last_level, new.last_slope = old.last_level, old.last_slope
+        rebuilt[id(old)] = new
         return new
 
     def _process_block(self, time_s: np.ndarray, columns: Mapping[str, np.ndarray], out: np.ndarray) -> np.ndarray:

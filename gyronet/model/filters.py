@@ -111,6 +111,7 @@ class RateTracker:
         self._level_state = (signal.lfiltic(b_level, a, ones, ones), signal.lfiltic(b_level, a, back, back))
         self._slope_state = (signal.lfiltic(b_slope, a, np.zeros(order), ones), signal.lfiltic(b_slope, a, ones, back))
         self.last_level = self.last_slope = 0.0
+        self.last_run = np.zeros(0)
 
     def prior(self, z0: float, slope0: float) -> None:
         """Set the state to a steady ramp that predicts z0 with slope0 for the next sample."""
@@ -131,6 +132,7 @@ class RateTracker:
         """Slope estimates for the samples ``z`` (the level is kept as state)."""
         level, slope = self._level.run(z), self._slope.run(z)
         self.last_level, self.last_slope = float(level[-1]), float(slope[-1])
+        self.last_run = slope  # read by a LaggedRate that shares this tracker
         return slope
 
     def step(self, z: float) -> float:
@@ -145,15 +147,19 @@ class LaggedRate:
     axis that sees the die through a thermal path of its own (``gyronet.training.axis_lag``). On a
     restart the lag starts (power-on) or relaxes over the gap (``Lag.restart``) at the tracker's
     first slope after it.
+
+    ``shared``: the tracker is an unlagged rate feature's, run (and restarted) before this one on the
+    same samples, so this reads its slope rather than running the same tracker twice.
     """
 
-    def __init__(self, tracker: RateTracker, lag: Lag):
-        self.tracker, self.lag = tracker, lag
+    def __init__(self, tracker: RateTracker, lag: Lag, shared: bool = False):
+        self.tracker, self.lag, self.shared = tracker, lag, shared
         self.tau_s, self.lag_s = tracker.tau_s, lag.tau_s
         self._restart: tuple[float | None] | None = None  # the gap of a restart not yet applied
 
     def restart(self, z0: float, gap_s: float | None) -> None:
-        self.tracker.restart(z0, gap_s)
+        if not self.shared:
+            self.tracker.restart(z0, gap_s)
         self._restart = (gap_s,)
 
     def _slope_in(self, slope: float) -> None:
@@ -162,11 +168,11 @@ class LaggedRate:
             self._restart = None
 
     def run(self, z: np.ndarray) -> np.ndarray:
-        slope = self.tracker.run(z)
+        slope = self.tracker.last_run if self.shared else self.tracker.run(z)
         self._slope_in(float(slope[0]))
         return self.lag.run(slope)
 
     def step(self, z: float) -> float:
-        slope = self.tracker.step(z)
+        slope = self.tracker.last_slope if self.shared else self.tracker.step(z)
         self._slope_in(slope)
         return self.lag.step(slope)
