@@ -22,6 +22,16 @@ def _temperature(n: int = 30000, fs_hz: float = 10.0):
     return time_s, np.round(temp_c * 16.0) / 16.0
 
 
+def _lossy_temperature():
+    """``_temperature`` with a bridged gap, a restarting one and a rate that doubles."""
+    time_s, temp_c = _temperature(12000)
+    keep = np.ones(len(time_s), dtype=bool)
+    keep[3000:3004] = keep[5000:5400] = False  # bridged, and restarted
+    time_s, temp_c = time_s[keep], temp_c[keep]
+    time_s[time_s > 900.0] = 900.0 + (time_s[time_s > 900.0] - 900.0) * 0.5  # the rate doubles
+    return time_s, temp_c
+
+
 def test_lagged_rate_is_the_rate_of_the_lagged_temperature():
     time_s, temp_c = _temperature()
     got = FeatureExtractor(SPECS, 10.0).process({"time_s": time_s, "temp_c": temp_c})
@@ -34,11 +44,7 @@ def test_lagged_rate_is_the_rate_of_the_lagged_temperature():
 
 
 def test_lagged_features_are_the_same_in_one_block_in_chunks_and_row_by_row_across_gaps_and_a_rate_change():
-    time_s, temp_c = _temperature(12000)
-    keep = np.ones(len(time_s), dtype=bool)
-    keep[3000:3004] = keep[5000:5400] = False  # bridged, and restarted
-    time_s, temp_c = time_s[keep], temp_c[keep]
-    time_s[time_s > 900.0] = 900.0 + (time_s[time_s > 900.0] - 900.0) * 0.5  # the rate doubles
+    time_s, temp_c = _lossy_temperature()
     columns = {"time_s": time_s, "temp_c": temp_c}
     whole = FeatureExtractor(SPECS, 10.0).process(columns)
     extractor = FeatureExtractor(SPECS, 10.0)
@@ -52,11 +58,7 @@ def test_lagged_features_are_the_same_in_one_block_in_chunks_and_row_by_row_acro
 
 
 def test_a_lagged_rate_reads_the_unlagged_tracker_and_gives_the_numbers_of_its_own():
-    time_s, temp_c = _temperature(12000)
-    keep = np.ones(len(time_s), dtype=bool)
-    keep[3000:3004] = keep[5000:5400] = False  # bridged, and restarted
-    time_s, temp_c = time_s[keep], temp_c[keep]
-    time_s[time_s > 900.0] = 900.0 + (time_s[time_s > 900.0] - 900.0) * 0.5  # the rate doubles
+    time_s, temp_c = _lossy_temperature()
     temp_c[7000] = 150.0  # a glitch, rejected
     columns = {"time_s": time_s, "temp_c": temp_c}
     shared = FeatureExtractor(SPECS, 10.0)
