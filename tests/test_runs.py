@@ -185,6 +185,20 @@ def test_run_offsets_recover_simulated_turn_on_biases(tmp_path):
     np.testing.assert_allclose(data.offsets.values().detach().numpy(), biases - biases.mean(0), atol=0.01)
 
 
+def test_a_run_outside_the_other_runs_temperatures_is_named_as_an_extrapolation_fold(tmp_path, caplog):
+    from gyronet.sim import simulate, write_simulation
+
+    chamber, desk = tmp_path / "chamber.csv", tmp_path / "desk.csv"  # a full cycle, and two hours at 25 degC
+    write_simulation(simulate("paper", fs_hz=0.5, seed=1, sensor_seed=0), chamber)
+    write_simulation(simulate("constant", fs_hz=0.5, seed=2, sensor_seed=0, duration_s=7200.0), desk)
+    data = training_data(paths=[str(chamber), str(desk)])
+    with caplog.at_level("WARNING", logger="gyronet.training.runs"):
+        _, folds = fit_by_run(TempPolynomial(3), data, progress=False)
+    warned = [r.getMessage() for r in caplog.records if "extrapolation" in r.getMessage()]
+    assert len(warned) == 1 and warned[0].startswith("run chamber spends")
+    assert folds[0]["in_box_s"] < 3600.0 <= folds[1]["in_box_s"]
+
+
 def test_the_held_out_run_can_be_scored_as_deployed_with_a_startup_offset(paper_csv, cycle_csv):
     fold = training_data(paths=[str(paper_csv), str(cycle_csv)], val_startup_s=600).holding_out(1)
     time_s = fold.val_full[0]

@@ -20,6 +20,7 @@ import numpy as np
 from torch import nn
 
 from gyronet.errors import GyronetError
+from gyronet.training.capacity import MIN_IN_BOX_S
 from gyronet.model.features import PAPER_FEATURES
 from gyronet.training.dataset import MIN_TRAIN_BLOCKS, DriftData, TrainingData
 from gyronet.training.run_data import Run, RunBlocks, load_runs, run_name, stack_runs
@@ -169,7 +170,13 @@ def fit_by_run(model: nn.Module, data: RunsData, optim: Callable | None = None, 
         residual = y - predict(fold_model, x)
         low, high = fold_data.temp_range_c
         temp = run.temp_c
-        folds.append({"held_out": run.name, "path": run.path,
+        in_box_s = float(np.sum((temp >= low) & (temp <= high)) * np.median(np.diff(run.time_s)))
+        if in_box_s < MIN_IN_BOX_S:
+            log.warning("run %s spends %.0f min inside the other runs' temperatures (%.1f to %.1f degC): its fold "
+                        "measures extrapolation, and the capacity, step count and error bar taken from the folds "
+                        "follow it; give every run the campaign's range, or train on the run that covers it "
+                        "(data.path)", run.name, in_box_s / 60.0, low, high)
+        folds.append({"held_out": run.name, "path": run.path, "in_box_s": in_box_s,
                       "train_runs": [r.name for r in fold_data.train_runs],
                       **{k: v for k, v in metrics.items() if k.startswith(("val/", "train/"))},
                       # the held-out run's own constant removed: what a perfect start-up offset would leave
