@@ -101,10 +101,12 @@ def test_training_data_one_or_several_and_clear_errors(paper_csv, cycle_csv):
         training_data(paths=[str(paper_csv), str(paper_csv)])
 
 
-def test_leave_one_run_out_scores_each_run_and_trains_the_final_model_on_all(paper_csv, cycle_csv):
+def test_leave_one_run_out_scores_each_run_and_trains_the_final_model_on_all(paper_csv, cycle_csv, caplog):
     data = training_data(paths=[str(paper_csv), str(cycle_csv)])
-    model = RBFNet(3, 3, 8, rbf_inputs=[0], linear=True, temp_degree=3, clamp=True)
-    metrics, folds = fit_by_run(model, data, max_epochs=120, progress=False)
+    model = RBFNet(3, 3, 8, rbf_inputs=[0], linear=True, temp_degree=3, clamp=True, validate_init=True)
+    with caplog.at_level("INFO", logger="gyronet.training.runs"):
+        metrics, folds = fit_by_run(model, data, max_epochs=120, progress=False)
+    assert any("k-means start alone" in r.getMessage() for r in caplog.records)  # the user hears what a campaign lacks
     assert [f["held_out"] for f in folds] == ["paper", "cycle"]
     assert metrics["val/rmse_dps"] == pytest.approx(np.mean([f["val/rmse_dps"] for f in folds]))
     assert metrics["train/steps"] == int(np.median([f["train/best_step"] for f in folds]))

@@ -160,6 +160,11 @@ def fit_by_run(model: nn.Module, data: RunsData, optim: Callable | None = None, 
     untrained = copy.deepcopy(model)
     from gyronet.training import error_bar_fit
 
+    if getattr(model, "validate_init", False):
+        log.info("several runs: the fit runs the k-means start alone, not the mixture of starts one recording "
+                 "gets; where a sensor's bias has sharp knees one recording of the same cycles does better "
+                 "(docs/guides/campaign.md#what-a-campaign-does-not-do-yet)")
+
     folds, best_steps, fold_fits = [], [], []  # fold_fits: each fold's model and data, for the error bar
     for run in data.runs:
         fold_data = data.holding_out(run.index)
