@@ -70,7 +70,8 @@ def test_a_lagged_rate_reads_the_unlagged_tracker_and_gives_the_numbers_of_its_o
     whole = shared.process(columns)
     assert shared.rate_changes and shared.n_rejected
     np.testing.assert_array_equal(whole[:, 4], own.process(columns)[:, 0])
-    shared.reset(), own.reset()
+    shared.reset()
+    own.reset()
     rows = [shared.process_row(t, {"temp_c": v})[0][4] for t, v in zip(time_s, temp_c)]
     np.testing.assert_array_equal(rows, [own.process_row(t, {"temp_c": v})[0][0] for t, v in zip(time_s, temp_c)])
 

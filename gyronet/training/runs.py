@@ -20,8 +20,8 @@ import numpy as np
 from torch import nn
 
 from gyronet.errors import GyronetError
-from gyronet.training.capacity import MIN_IN_BOX_S
 from gyronet.model.features import PAPER_FEATURES
+from gyronet.training.capacity import MIN_IN_BOX_S
 from gyronet.training.dataset import MIN_TRAIN_BLOCKS, DriftData, TrainingData
 from gyronet.training.run_data import Run, RunBlocks, load_runs, run_name, stack_runs
 from gyronet.training.run_offsets import RunOffsets
