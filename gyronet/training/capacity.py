@@ -54,6 +54,13 @@ def fit_level(model: nn.Module, x: torch.Tensor, y: torch.Tensor, level: int, ax
     model.refit_head(x, y, level=level, axes=list(axes))
 
 
+def inside_box(time_s: np.ndarray, temp_c: np.ndarray, temp_range_c: Sequence[float]) -> tuple[np.ndarray, float]:
+    """Which samples lie inside the trained temperatures, and the seconds they span (count x median period)."""
+    low, high = temp_range_c
+    inside = (temp_c >= low) & (temp_c <= high)
+    return inside, float(inside.sum() * np.median(np.diff(time_s)))
+
+
 def held_out_error(model: nn.Module, data: Any) -> np.ndarray:
     """Per-axis 60 s RMS of the held-out residual, deg/s; a held-out run's in the trained box, demeaned."""
     time_s, x, y = data.val_full
@@ -61,10 +68,8 @@ def held_out_error(model: nn.Module, data: Any) -> np.ndarray:
         residual = y - model(torch.tensor(x, dtype=torch.float64)).numpy()
     if getattr(data, "held_out", None) is None:  # one recording's held-out blocks: the constant is shared
         return block_rmse(time_s, residual, 60.0)
-    low, high = data.temp_range_c
-    temp = x[:, getattr(model, "temp_index", 0)]
-    inside = (temp >= low) & (temp <= high)
-    if inside.sum() * np.median(np.diff(time_s)) >= MIN_IN_BOX_S:
+    inside, inside_s = inside_box(time_s, x[:, getattr(model, "temp_index", 0)], data.temp_range_c)
+    if inside_s >= MIN_IN_BOX_S:
         time_s, residual = time_s[inside], residual[inside]
     return block_rmse(time_s, residual - residual.mean(0), 60.0)
 
@@ -117,5 +122,5 @@ def from_metrics(folds: Sequence[dict]) -> np.ndarray:
     return np.asarray([[np.mean([f[f"val/capacity_{name}_{a}_dps"] for f in folds]) for a in AXES] for name in LEVELS])
 
 
-__all__ = ["LEVELS", "TOLERANCE", "apply", "as_metrics", "choose", "fit_level", "from_metrics", "held_out_error",
-           "level_errors", "refit"]
+__all__ = ["LEVELS", "MIN_IN_BOX_S", "TOLERANCE", "apply", "as_metrics", "choose", "fit_level", "from_metrics",
+           "held_out_error", "inside_box", "level_errors", "refit"]

@@ -21,7 +21,7 @@ from torch import nn
 
 from gyronet.errors import GyronetError
 from gyronet.model.features import PAPER_FEATURES
-from gyronet.training.capacity import MIN_IN_BOX_S
+from gyronet.training.capacity import MIN_IN_BOX_S, inside_box
 from gyronet.training.dataset import MIN_TRAIN_BLOCKS, DriftData, TrainingData
 from gyronet.training.run_data import Run, RunBlocks, load_runs, run_name, stack_runs
 from gyronet.training.run_offsets import RunOffsets
@@ -175,7 +175,7 @@ def fit_by_run(model: nn.Module, data: RunsData, optim: Callable | None = None, 
         residual = y - predict(fold_model, x)
         low, high = fold_data.temp_range_c
         temp = run.temp_c
-        in_box_s = float(np.sum((temp >= low) & (temp <= high)) * np.median(np.diff(run.time_s)))
+        _, in_box_s = inside_box(run.time_s, temp, (low, high))
         if in_box_s < MIN_IN_BOX_S:
             log.warning("run %s spends %.0f min inside the other runs' temperatures (%.1f to %.1f degC): its fold "
                         "measures extrapolation, and the capacity, step count and error bar taken from the folds "
