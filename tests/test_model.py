@@ -327,6 +327,20 @@ def test_mix_into_refuses_fits_normalised_on_different_data():
         mix_into(RBFNet(3, 3, 4, rbf_inputs=[0]), parts, np.full((2, 3), 0.5))
 
 
+def test_mix_into_is_exact_for_fits_with_different_output_scales():
+    """A campaign's starts each subtract their own run offsets, so their output scales differ."""
+    x, y, _ = _knee_data()
+    parts = [RBFNet(3, 3, 4, rbf_inputs=[0], linear=True, temp_degree=3, clamp=True) for _ in range(2)]
+    parts[0].init_from_data(x, y, torch.Generator().manual_seed(0))
+    parts[1].init_from_data(x, 2 * y + 0.3, torch.Generator().manual_seed(1))
+    weights = np.array([[0.25, 1.0, 0.0], [0.75, 0.0, 1.0]])
+    model = RBFNet(3, 3, 4, rbf_inputs=[0], linear=True, temp_degree=3, clamp=True)
+    mix_into(model, parts, weights)
+    with torch.no_grad():
+        expected = sum(torch.tensor(w) * p(x) for w, p in zip(weights, parts))
+        assert_close(model(x), expected, rtol=0, atol=1e-12)
+
+
 def test_training_keeps_ols_widths_at_or_above_the_narrowest_candidate():
     """``fit`` holds the floor: without it Adam narrows a Gaussian onto a step far sharper than any candidate."""
     x, y, _ = _knee_data(width_c=0.5)

@@ -38,7 +38,7 @@ from gyronet.training.steps import predict, validation_metrics
 
 log = logging.getLogger(__name__)
 
-_SHARED_BUFFERS = ("x_mean", "x_std", "z_low", "z_high", "y_mean", "y_std", "rbf_index")
+_SHARED_BUFFERS = ("x_mean", "x_std", "z_low", "z_high", "rbf_index")
 
 
 def stack_weights(*residuals: np.ndarray) -> np.ndarray:
@@ -80,24 +80,33 @@ def stack_weights(*residuals: np.ndarray) -> np.ndarray:
 def mix_into(model: nn.Module, parts: Sequence[nn.Module], weights: np.ndarray) -> None:
     """Write into ``model`` the network whose output is ``sum_k weights[k, a] * parts[k]`` on each axis ``a``.
 
-    ``weights`` is (len(parts), axes), each column summing to one; the parts must share the
-    normalisation and box (fits on the same data). ``model`` takes every part's Gaussians.
+    ``weights`` is (len(parts), axes), each column summing to one; the parts must share the input
+    normalisation and box (fits on the same data). Their output scales may differ (a campaign's
+    fits subtract their own run offsets): the mixture takes the first part's and rescales the others.
+    ``model`` takes every part's Gaussians.
     """
     for name in _SHARED_BUFFERS:
         if not all(torch.equal(getattr(p, name), getattr(parts[0], name)) for p in parts):
             raise ValueError(f"the fits to mix normalise differently ({name}): they must share their data")
-    scale = torch.as_tensor(np.asarray(weights), dtype=torch.float64)  # (parts, axes)
+    weight = torch.as_tensor(np.asarray(weights), dtype=torch.float64)  # (parts, axes)
+    y_mean, y_std = parts[0].y_mean.clone(), parts[0].y_std.clone()
+    scale = [w * (p.y_std / y_std) for p, w in zip(parts, weight)]  # each part's output rows in the first's units
+    bias = sum(p.head.bias * s for p, s in zip(parts, scale))
+    if not all(torch.equal(p.y_mean, y_mean) for p in parts):
+        bias = bias + (sum(p.y_mean * w for p, w in zip(parts, weight)) - y_mean) / y_std
     dtype = parts[0].centers.dtype
     model.n_centers = sum(p.n_centers for p in parts)
     model.centers = nn.Parameter(torch.cat([p.centers.detach() for p in parts]))
     model.raw_width = nn.Parameter(torch.cat([p.raw_width.detach() for p in parts]))
     model.head = nn.Linear(model.n_centers, model.n_outputs, dtype=dtype)
-    model.head.weight.copy_(torch.cat([p.head.weight * w[:, None] for p, w in zip(parts, scale)], dim=1))
-    model.head.bias.copy_(sum(p.head.bias * w for p, w in zip(parts, scale)))
+    model.head.weight.copy_(torch.cat([p.head.weight * s[:, None] for p, s in zip(parts, scale)], dim=1))
+    model.head.bias.copy_(bias)
     for layer in ("linear", "poly"):
-        getattr(model, layer).weight.copy_(sum(getattr(p, layer).weight * w[:, None] for p, w in zip(parts, scale)))
+        getattr(model, layer).weight.copy_(sum(getattr(p, layer).weight * s[:, None] for p, s in zip(parts, scale)))
     for name in _SHARED_BUFFERS:
         getattr(model, name).copy_(getattr(parts[0], name))
+    model.y_mean.copy_(y_mean)
+    model.y_std.copy_(y_std)
     model.train_min_width = min(p.train_min_width for p in parts)
 
 
