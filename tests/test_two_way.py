@@ -28,6 +28,15 @@ def test_a_cooling_staircase_is_one_way_and_a_cycle_two_way():
     assert two_way_share(*ramp(60, -40, 10)) == pytest.approx(0.5, abs=0.05)
 
 
+def test_a_campaign_counts_rates_within_runs_and_degrees_across_them():
+    cooling, heating = ramp(60, -40), ramp(-40, 60)  # both runs start at time 0
+    time_s, temp_c = (np.concatenate(pair) for pair in zip(cooling, heating))
+    run = np.repeat([0, 1], [len(cooling[0]), len(heating[0])])
+    assert two_way_share(time_s, temp_c, run) > 0.95
+    assert two_way_share(*cooling) < 0.05 and two_way_share(*heating) < 0.05
+    assert two_way_share(time_s, temp_c) < 0.5  # as one record the runs' samples would share time blocks
+
+
 def test_dwells_and_gaps_are_neither_heating_nor_cooling():
     time_s, temp_c = ramp(20, 20.5, rate_c_per_min=0.05)  # slower than a ramp: a drifting dwell
     assert two_way_share(time_s, temp_c) == 0.0
