@@ -101,15 +101,44 @@ def test_training_data_one_or_several_and_clear_errors(paper_csv, cycle_csv):
         training_data(paths=[str(paper_csv), str(paper_csv)])
 
 
-def test_leave_one_run_out_scores_each_run_and_trains_the_final_model_on_all(paper_csv, cycle_csv, caplog):
-    data = training_data(paths=[str(paper_csv), str(cycle_csv)])
-    model = RBFNet(3, 3, 8, rbf_inputs=[0], linear=True, temp_degree=3, clamp=True, validate_init=True)
+def test_leave_one_run_out_mixes_every_start_by_the_held_out_runs_and_trains_the_final_model_on_all(
+        paper_csv, cycle_csv, caplog, monkeypatch):
+    """Each start is fitted in each fold and weighted on the held-out runs (demeaned); the bundle is the
+    same mixture of the starts trained on every run, run offsets included."""
+    from gyronet.training import run_starts
+    from gyronet.training.starts import stack_weights
+
+    calls, fit_start = [], run_starts.fit_start  # (start, data, its fit, its offsets' raw values)
+
+    def recorded(start, data, *args, **kwargs):
+        figures, fitted, raw = fit_start(start, data, *args, **kwargs)
+        calls.append((start.name, data, fitted, raw))
+        return figures, fitted, raw
+
+    monkeypatch.setattr(run_starts, "fit_start", recorded)
+    data = training_data(paths=[str(paper_csv), str(cycle_csv)], run_offsets=True)
+    model = RBFNet(3, 3, 6, rbf_inputs=[0], linear=True, temp_degree=3, clamp=True, validate_init=True,
+                   kmeans_members=2)
     with caplog.at_level("INFO", logger="gyronet.training.runs"):
         metrics, folds = fit_by_run(model, data, max_epochs=120, progress=False)
-    assert any("k-means start alone" in r.getMessage() for r in caplog.records)  # the user hears what a campaign lacks
+    assert any("starts mixed per axis on the 2 held-out runs" in r.getMessage() for r in caplog.records)
     assert [f["held_out"] for f in folds] == ["paper", "cycle"]
     assert metrics["val/rmse_dps"] == pytest.approx(np.mean([f["val/rmse_dps"] for f in folds]))
-    assert metrics["train/steps"] == int(np.median([f["train/best_step"] for f in folds]))
+    assert metrics["train/steps_ols"] == int(np.median([f["train/best_step_ols"] for f in folds]))
+    names = ["kmeans", "ols", "ols_narrow"]
+    weights = np.array([[metrics[f"model/{n}_weight_{a}"] for a in "xyz"] for n in names])
+    by_fold = [[c for c in calls if c[1].held_out == f] for f in (0, 1)]
+    assert [[c[0] for c in fold] for fold in by_fold] == [names, names]
+    residuals = [np.concatenate([run_starts.demeaned_residuals(fold[k][2], fold[k][1]) for fold in by_fold])
+                 for k in range(3)]
+    np.testing.assert_allclose(weights, stack_weights(*residuals))
+    final = [c for c in calls if c[1] is data]
+    assert [c[0] for c in final] == [n for n, w in zip(names, weights) if w.any()]
+    x = torch.as_tensor(data.train.x)
+    with torch.no_grad():
+        expected = sum(torch.as_tensor(w) * (part(x) + (raw - raw.mean(0))[data.offsets.run])
+                       for (_, _, part, raw), w in zip(final, weights[weights.any(1)]))
+        torch.testing.assert_close(model(x) + data.offsets(), expected, rtol=0, atol=1e-9)
     # the final model saw both runs: its training box is the union
     assert model.z_low[0] * model.x_std[0] + model.x_mean[0] == pytest.approx(data.train.x[:, 0].min())
 

@@ -89,7 +89,8 @@ class ErrorBar:
             import copy
 
             self._scripted = torch.jit.freeze(torch.jit.script(copy.deepcopy(self.members)))
-        x = torch.from_numpy(np.ascontiguousarray(features, dtype=np.float64))
+        features = np.ascontiguousarray(features, dtype=np.float64)
+        x = torch.from_numpy(features if features.flags.writeable else features.copy())  # torch reads, but warns
         with torch.no_grad():
             out = torch.cat([self._scripted(chunk) for chunk in x.split(CHUNK_ROWS)]) if len(x) else x.new_zeros(
                 (0, 3 * self.n_members))

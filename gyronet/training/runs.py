@@ -8,10 +8,11 @@ the only honest answer to "does it transfer to another thermal history". Optiona
 per run and axis (``RunOffsets``) is fitted beside the model, as a nuisance parameter, so the
 temperature model learns only what the runs share. A model with ``select_capacity`` gets each
 axis's capacity from every fold's held-out run (``gyronet.training.capacity``): what repeats from run to run.
+A model with ``validate_init`` gets every start, mixed per axis by the held-out runs
+(``gyronet.training.run_starts``).
 """
 from __future__ import annotations
 
-import copy
 import hashlib
 import logging
 from typing import Any, Callable, Sequence
@@ -21,6 +22,7 @@ from torch import nn
 
 from gyronet.errors import GyronetError
 from gyronet.model.features import PAPER_FEATURES
+from gyronet.recordings.data import AXES
 from gyronet.training.capacity import MIN_IN_BOX_S, inside_box
 from gyronet.training.dataset import MIN_TRAIN_BLOCKS, DriftData, TrainingData
 from gyronet.training.run_data import Run, RunBlocks, load_runs, run_name, stack_runs
@@ -147,75 +149,119 @@ def fit_by_run(model: nn.Module, data: RunsData, optim: Callable | None = None, 
     on the held-out run) and scored on it. ``val/*`` are the means over the folds. The final model
     is trained on every run for the median of the folds' best step counts: with no run left to
     stop on, the folds say how long a fit on one run fewer should train, and one more run changes
-    that little (a closed-form model needs no count).
+    that little (a closed-form model needs no count). With ``validate_init`` every start is fitted
+    so and mixed per axis by the held-out runs (``gyronet.training.run_starts``).
 
     Returns
     -------
     metrics, folds
         The metrics (``val/rmse_dps`` first of all) and each fold's figures.
     """
-    from gyronet.training.dataset import block_rmse
-    from gyronet.training.train import fit, predict
+    from gyronet.training import error_bar_fit, run_starts
+    from gyronet.training.starts import spread_figures
+    from gyronet.training.train import fit
 
-    untrained = copy.deepcopy(model)
-    from gyronet.training import error_bar_fit
+    fold_data = [data.holding_out(run.index) for run in data.runs]
+    starts, figures, fits = run_starts.fit_folds(run_starts.starts_of(model, data, seed), fold_data, fit, optim,
+                                                 fit_kwargs)
+    by_fold = [list(f) for f in zip(*fits)]  # by_fold[f][k]: start k's fit in fold f
+    plain = len(starts) == 1 and len(starts[0].seeds) == 1  # one fit per fold, as any model without starts
+    weights = run_starts.stack_by_run(by_fold, fold_data) if len(starts) > 1 else np.ones((1, len(AXES)))
+    used = [k for k in range(len(starts)) if weights[k].any()]
+    fold_parts = [[fold_fits[k] for k in used] for fold_fits in by_fold]
+    fold_models = [run_starts.mixed(parts, weights[used]) for parts in fold_parts]
+    steps = [run_starts.median_steps(f) for f in figures]
+    folds = [_fold_record(run, fold, fold_model, figures[0][f][0] if plain else _mixture_figures(
+                 model, fold, fold_model, starts, [s[f] for s in figures]))
+             for f, (run, fold, fold_model) in enumerate(zip(data.runs, fold_data, fold_models))]
 
-    if getattr(model, "validate_init", False):
-        log.info("several runs: the fit runs the k-means start alone, not the mixture of starts one recording "
-                 "gets; where a sensor's bias has sharp knees one recording of the same cycles does better "
-                 "(docs/guides/campaign.md#what-a-campaign-does-not-do-yet)")
-
-    folds, best_steps, fold_fits = [], [], []  # fold_fits: each fold's model and data, for the error bar
-    for run in data.runs:
-        fold_data = data.holding_out(run.index)
-        fold_model = copy.deepcopy(untrained)
-        metrics = fit(fold_model, fold_data, optim, seed=seed, **fit_kwargs)
-        fold_fits.append((fold_model, fold_data))
-        time_s, x, y = fold_data.val_full
-        residual = y - predict(fold_model, x)
-        low, high = fold_data.temp_range_c
-        temp = run.temp_c
-        _, in_box_s = inside_box(run.time_s, temp, (low, high))
-        if in_box_s < MIN_IN_BOX_S:
-            log.warning("run %s spends %.0f min inside the other runs' temperatures (%.1f to %.1f degC): its fold "
-                        "measures extrapolation, and the capacity, step count and error bar taken from the folds "
-                        "follow it; give every run the campaign's range, or train on the run that covers it "
-                        "(data.path)", run.name, in_box_s / 60.0, low, high)
-        folds.append({"held_out": run.name, "path": run.path, "in_box_s": in_box_s,
-                      "train_runs": [r.name for r in fold_data.train_runs],
-                      **{k: v for k, v in metrics.items() if k.startswith(("val/", "train/"))},
-                      # the held-out run's own constant removed: what a perfect start-up offset would leave
-                      "val/rmse_demeaned_dps": block_rmse(time_s, residual - residual.mean(0)).tolist(),
-                      "out_of_range_fraction": float(np.mean((temp < low) | (temp > high)))})
-        if "train/best_step" in metrics:
-            best_steps.append(metrics["train/best_step"])
-        log.info("fold %s held out: 60 s RMSE %s deg/s", run.name,
-                 ", ".join(f"{a}={metrics[f'val/rmse_{a}_dps']:.4g}" for a in "xyz"))
-    steps = int(np.median(best_steps)) if best_steps else None
-    final = fit(model, data, optim, seed=seed, writer=writer, stop_at_step=steps, **fit_kwargs)
+    parts = None
+    if plain:
+        final = fit(model, data, optim, seed=seed, writer=writer, stop_at_step=steps[0], **fit_kwargs)
+    else:
+        parts, loss = run_starts.fit_final(model, [starts[k] for k in used], weights[used], [steps[k] for k in used],
+                                           data, fit, optim, fit_kwargs)
+        final = {"train/loss": loss}
+        log.info(run_starts.describe(starts, weights, [np.mean([m["val/rmse_dps"] for members in figures[k]
+                                                                for m in members]) for k in range(len(starts))],
+                                     data.n_runs))
     out = {"train/loss": final["train/loss"]}
-    for key in [f"val/rmse_{a}_dps" for a in "xyz"] + ["val/rmse_dps"]:
+    for key in [f"val/rmse_{a}_dps" for a in AXES] + ["val/rmse_dps"]:
         out[key] = float(np.mean([f[key] for f in folds]))
-    if steps is not None:
-        out["train/steps"] = steps
+    if plain and steps[0] is not None:
+        out["train/steps"] = steps[0]
+    if not plain:
+        out.update({f"train/steps_{s.name}": float(n) for s, n in zip(starts, steps) if n is not None})
+        out.update({f"model/{s.name}_weight_{a}": float(weights[k, j]) for k, s in enumerate(starts)
+                    for j, a in enumerate(AXES)})
+        # the spread over what was tried: each start's members, their held-out figures averaged over the folds
+        out.update(spread_figures([{f"val/rmse_{a}_dps": float(np.mean([members[j][f"val/rmse_{a}_dps"]
+                                                                          for members in figures[k]])) for a in AXES}
+                                   for k in range(len(starts)) for j in range(len(starts[k].seeds))]))
     if getattr(model, "select_capacity", False):  # each axis's level, from every fold's held-out run
         from gyronet.training import capacity
 
         errors = capacity.from_metrics(folds)
         levels = capacity.choose(errors)
+        for part in parts or []:  # the bar's members as deployed
+            capacity.refit(part, data, levels)
         capacity.apply(model, data, levels)
-        for fold_model, fold_data in fold_fits:  # the bar is calibrated on what is deployed: the chosen levels
-            capacity.refit(fold_model, fold_data, levels)
+        for fold_model, fold, members in zip(fold_models, fold_data, fold_parts):  # the bar is calibrated on what
+            for m in {id(m): m for m in [fold_model, *members]}.values():  # is deployed: the chosen levels
+                capacity.refit(m, fold, levels)
         out.update(capacity.as_metrics(errors, levels))
-    fold_stats = [error_bar_fit.held_out_stats(m, None, *d.val_full, d.train.x, d.val_adjust) for m, d in fold_fits]
+    fold_stats = [error_bar_fit.held_out_stats(m, members if len(members) > 1 else None, *d.val_full, d.train.x,
+                                               d.val_adjust) for m, d, members in zip(fold_models, fold_data, fold_parts)]
     pooled, by_run = error_bar_fit.cross_check(fold_stats)
     error_bar_fit.attach(model, error_bar_fit.merge_stats(fold_stats, {
         "held_out": [r.name for r in data.runs], "startup_s": data.val_startup_s, "cross_within_1_sigma": pooled,
-        "cross_within_1_sigma_by_run": dict(zip((r.name for r in data.runs), by_run))}))
-    out.update({f"val/cross_within_1_sigma_{a}": v for a, v in zip("xyz", pooled)})
+        "cross_within_1_sigma_by_run": dict(zip((r.name for r in data.runs), by_run))}),
+        parts if parts and len(parts) > 1 else None)
+    out.update({f"val/cross_within_1_sigma_{a}": v for a, v in zip(AXES, pooled)})
+    counted = "/".join(str(n) for n in steps if n is not None)
     log.info("leave-one-run-out over %d runs: mean held-out 60 s RMSE %.4g deg/s; final fit on every run%s",
-             data.n_runs, out["val/rmse_dps"], f" for {steps} steps" if steps else "")
+             data.n_runs, out["val/rmse_dps"], f" for {counted} steps" if counted else "")
     return out, folds
+
+
+def _mixture_figures(model: nn.Module, fold: RunsData, fold_model: nn.Module, starts: Sequence[Any],
+                     figures: Sequence[Sequence[dict]]) -> dict[str, float]:
+    """A fold's figures for the mixture of its starts: its held-out errors, each start's steps, the capacity evidence."""
+    from gyronet.training.steps import validation_metrics
+
+    metrics = {**validation_metrics(fold_model, fold), **{
+        f"train/best_step_{s.name}": float(np.median([m["train/best_step"] for m in members]))
+        for s, members in zip(starts, figures) if all("train/best_step" in m for m in members)}}
+    if getattr(model, "select_capacity", False):
+        from gyronet.training import capacity
+
+        metrics.update(capacity.as_metrics(capacity.level_errors(fold_model, fold)))
+    return metrics
+
+
+def _fold_record(run: Run, fold: RunsData, fold_model: nn.Module, metrics: dict[str, float]) -> dict[str, Any]:
+    """``report.json``'s record of one fold; a held-out run mostly outside the others' temperatures is named."""
+    from gyronet.training.dataset import block_rmse
+    from gyronet.training.steps import predict
+
+    time_s, x, y = fold.val_full
+    residual = y - predict(fold_model, x)
+    low, high = fold.temp_range_c
+    temp = run.temp_c
+    _, in_box_s = inside_box(run.time_s, temp, (low, high))
+    if in_box_s < MIN_IN_BOX_S:
+        log.warning("run %s spends %.0f min inside the other runs' temperatures (%.1f to %.1f degC): its fold "
+                    "measures extrapolation, and the capacity, step count and error bar taken from the folds "
+                    "follow it; give every run the campaign's range, or train on the run that covers it "
+                    "(data.path)", run.name, in_box_s / 60.0, low, high)
+    log.info("fold %s held out: 60 s RMSE %s deg/s", run.name,
+             ", ".join(f"{a}={metrics[f'val/rmse_{a}_dps']:.4g}" for a in AXES))
+    return {"held_out": run.name, "path": run.path, "in_box_s": in_box_s,
+            "train_runs": [r.name for r in fold.train_runs],
+            **{k: v for k, v in metrics.items() if k.startswith(("val/", "train/"))},
+            # the held-out run's own constant removed: what a perfect start-up offset would leave
+            "val/rmse_demeaned_dps": block_rmse(time_s, residual - residual.mean(0)).tolist(),
+            "out_of_range_fraction": float(np.mean((temp < low) | (temp > high)))}
 
 
 __all__ = ["Run", "RunBlocks", "RunOffsets", "RunsData", "fit_by_run", "load_runs", "minus_startup_offset", "run_name",
