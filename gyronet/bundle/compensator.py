@@ -30,9 +30,10 @@ from gyronet.model.small_model import SMALL_ROWS, row_model
 
 log = logging.getLogger(__name__)
 
-# Rows per model call on a long batch: intermediates of 64 k rows stay in cache, which makes a
-# whole recording about six times faster than one call on all of it (scripts/bench.py).
-CHUNK_ROWS = 65536
+# Rows per model call on a long batch: the intermediates of 8 k rows stay in cache, which makes a
+# whole recording several times faster than one call on all of it (scripts/bench.py); 64 k rows
+# did as well for one start's 12 Gaussians, and 13-23 % worse than 8 k for the mixed default and its bar.
+CHUNK_ROWS = 8192
 # a data rate this far from the bundle's fs_hz (relative) is the bundle's rate with a clock error
 RATE_TOLERANCE = 0.05
 

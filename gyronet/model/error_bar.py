@@ -33,7 +33,7 @@ from gyronet.errors import BundleError
 log = logging.getLogger(__name__)
 
 BLOCK_S = 60.0  # the contract's residual block: what the bar is calibrated on
-CHUNK_ROWS = 65536  # rows per members call on a long batch (gyronet.bundle.compensator.CHUNK_ROWS: in cache)
+CHUNK_ROWS = 8192  # rows per members call on a long batch (gyronet.bundle.compensator.CHUNK_ROWS: in cache)
 EDGE_FRACTION = 0.1  # the share of the box's width at each edge where the edge slopes are taken
 META_KEY = "error_bar"
 FORMAT = 1
