@@ -143,6 +143,30 @@ def test_leave_one_run_out_mixes_every_start_by_the_held_out_runs_and_trains_the
     assert model.z_low[0] * model.x_std[0] + model.x_mean[0] == pytest.approx(data.train.x[:, 0].min())
 
 
+def test_a_start_one_fold_cannot_make_is_left_out_of_every_fold(paper_csv, cycle_csv, monkeypatch, caplog):
+    """Forward selection needs a wide enough range: a start that fails on one fold's runs is dropped everywhere."""
+    from gyronet.model.rbf_init import SelectionError
+    from gyronet.training import run_starts
+
+    fit_start = run_starts.fit_start
+
+    def narrow(start, data, *args, **kwargs):
+        if start.name == "ols" and data.held_out == 1:
+            raise SelectionError("only 9 independent candidate Gaussians, 12 asked for")
+        return fit_start(start, data, *args, **kwargs)
+
+    monkeypatch.setattr(run_starts, "fit_start", narrow)
+    data = training_data(paths=[str(paper_csv), str(cycle_csv)])
+    model = RBFNet(3, 3, 6, rbf_inputs=[0], linear=True, temp_degree=3, clamp=True, validate_init=True,
+                   kmeans_members=1)
+    with caplog.at_level("INFO", logger="gyronet.training.run_starts"):
+        metrics, _ = fit_by_run(model, data, max_epochs=60, progress=False)
+    assert "no ols start (only 9 independent" in caplog.text
+    assert "model/ols_weight_x" not in metrics and "train/steps_ols" not in metrics
+    for a in "xyz":
+        assert metrics[f"model/kmeans_weight_{a}"] + metrics[f"model/ols_narrow_weight_{a}"] == pytest.approx(1.0)
+
+
 def _script(script, tmp_path, *overrides):
     cmd = [sys.executable, f"scripts/{script}", *overrides, f"hydra.run.dir={tmp_path}", "train.progress=false"]
     return subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True)
