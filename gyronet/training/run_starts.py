@@ -45,7 +45,8 @@ def starts_of(model: nn.Module, data: Any, seed: int) -> list[Start]:
     starts = []
     for init in CENTER_INITS:
         start = copy.deepcopy(model)
-        start.center_init, start.validate_init = init, False
+        # the capacity is chosen once, on the folds' mixtures (fit_by_run): no start's own fit needs its levels' errors
+        start.center_init, start.validate_init, start.select_capacity = init, False, False
         members = model.kmeans_members if init == "kmeans" else 1
         starts.append(Start(init, start, member_seeds(seed, members)))
     return starts
