@@ -13,6 +13,11 @@ import torch
 from torch import Tensor, nn
 
 
+def lstsq(design: Tensor, target: Tensor) -> Tensor:
+    """Least squares that repeat bit for bit (MKL's default driver, gelsy, varies in the last bit between calls)."""
+    return torch.linalg.lstsq(design, target, driver="gelsd").solution
+
+
 class TempPolynomial(nn.Module):
     """PX4-style polynomial in temperature, with a reference temperature and range clamping.
 
@@ -51,7 +56,7 @@ class TempPolynomial(nn.Module):
         self.temp_min_c.copy_(temp.min())
         self.temp_max_c.copy_(temp.max())
         self.temp_ref_c.copy_(0.5 * (self.temp_min_c + self.temp_max_c))
-        self.coef.copy_(torch.linalg.lstsq(self._powers(x), y).solution)
+        self.coef.copy_(lstsq(self._powers(x), y))
 
 
 class LinearFeatures(nn.Module):
@@ -72,6 +77,6 @@ class LinearFeatures(nn.Module):
         """Least squares on centred inputs (better conditioned than raw T and T*dT/dt)."""
         self.x_mean.copy_(x.mean(0))
         design = torch.cat([x - self.x_mean, torch.ones(len(x), 1, dtype=x.dtype)], dim=1)
-        solution = torch.linalg.lstsq(design, y).solution
+        solution = lstsq(design, y)
         self.weight.copy_(solution[:-1])
         self.bias.copy_(solution[-1])

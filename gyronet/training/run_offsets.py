@@ -17,6 +17,7 @@ import torch
 from torch import Tensor, nn
 
 from gyronet.errors import GyronetError
+from gyronet.model.baselines import lstsq
 
 log = logging.getLogger(__name__)
 
@@ -62,7 +63,7 @@ class RunOffsets(nn.Module):
             padded = torch.cat([chunk, torch.zeros(len(chunk), 3 - chunk.shape[1], dtype=y.dtype)], 1)
             resid_r.append((padded - fit_predict(padded))[:, :chunk.shape[1]])
         resid_r = torch.cat(resid_r, 1)
-        coef = torch.linalg.lstsq(resid_r, resid_y).solution
+        coef = lstsq(resid_r, resid_y)
         self.raw.copy_(torch.cat([torch.zeros(1, 3, dtype=y.dtype), coef]))
 
     @torch.no_grad()
