@@ -241,6 +241,15 @@ def test_new_bundle_records_checksums(bundle):
     assert read_bundle(bundle).verified
 
 
+def test_the_same_model_saved_twice_is_the_same_file(tmp_path):
+    """A repeated run can be checked by its checksums (the archive was named after the temporary file)."""
+    poly = TempPolynomial(3)
+    poly.fit_closed_form(torch.randn(50, 3, dtype=torch.float64) + 20, torch.randn(50, 3, dtype=torch.float64))
+    for name in ("a", "b"):
+        save_bundle(poly, {}, tmp_path / name)
+    assert (tmp_path / "a" / "model.pt").read_bytes() == (tmp_path / "b" / "model.pt").read_bytes()
+
+
 def test_kalman_stage_present_iff_meta_says_so(kalman_bundle, columns, tmp_path):
     reference = Compensator.load(kalman_bundle).process(columns).rate_dps
     meta = json.loads((kalman_bundle / "meta.json").read_text())

@@ -8,6 +8,7 @@ favour of ``torch.export``; keeping all of it here means switching changes one f
 from __future__ import annotations
 
 import hashlib
+import io
 import json
 import logging
 from pathlib import Path
@@ -49,8 +50,10 @@ def save_bundle(model: torch.nn.Module, meta: Mapping[str, Any], out_dir: str | 
     scripted = torch.jit.script(model)
     full_meta = {"format": BUNDLE_FORMAT, "gyronet_version": gyronet_version(), **meta,
                  "kalman": kalman is not None}
+    buffer = io.BytesIO()  # saved by name, the archive's folder would be the temporary file's random name
+    torch.jit.save(scripted, buffer, _extra_files={TRAINED_FILE: trained_json(full_meta)})
     with atomic_output(out_dir / MODEL_FILE) as tmp:
-        scripted.save(str(tmp), _extra_files={TRAINED_FILE: trained_json(full_meta)})
+        tmp.write_bytes(buffer.getvalue())
     sums = {MODEL_FILE: sha256_file(out_dir / MODEL_FILE)}
     kalman_path = out_dir / KALMAN_FILE
     if kalman is not None:
