@@ -147,9 +147,9 @@ def fit_by_run(model: nn.Module, data: RunsData, optim: Callable | None = None, 
 
     Each run is held out in turn; a fresh copy of ``model`` is fitted on the others (early stopping
     on the held-out run) and scored on it. ``val/*`` are the means over the folds. The final model
-    is trained on every run for the median of the folds' best step counts: with no run left to
-    stop on, the folds say how long a fit on one run fewer should train, and one more run changes
-    that little (a closed-form model needs no count). With ``validate_init`` every start is fitted
+    is trained on every run for the largest of the folds' best step counts: with no run left to
+    stop on, the folds say how long a fit on one run fewer trains before it overfits, and with more
+    data the final fit overfits no sooner (a closed-form model needs no count). With ``validate_init`` every start is fitted
     so and mixed per axis by the held-out runs (``gyronet.training.run_starts``).
 
     Returns
@@ -170,11 +170,21 @@ def fit_by_run(model: nn.Module, data: RunsData, optim: Callable | None = None, 
     used = [k for k in range(len(starts)) if weights[k].any()]
     fold_parts = [[fold_fits[k] for k in used] for fold_fits in by_fold]
     fold_models = [run_starts.mixed(parts, weights[used]) for parts in fold_parts]
-    steps = [run_starts.median_steps(f) for f in figures]
+    steps = [run_starts.most_steps(f) for f in figures]
     folds = [_fold_record(run, fold, fold_model, figures[0][f][0] if plain else _mixture_figures(
                  model, fold, fold_model, starts, [s[f] for s in figures]))
              for f, (run, fold, fold_model) in enumerate(zip(data.runs, fold_data, fold_models))]
 
+    levels = None
+    if getattr(model, "select_capacity", False):  # each axis's level, from every fold's held-out run
+        from gyronet.training import capacity
+
+        errors = capacity.from_metrics(folds)
+        levels = capacity.choose(errors)
+        if max(levels) < len(capacity.LEVELS) - 1:  # no axis keeps its Gaussians: the refit below replaces
+            steps = [None if n is None else 1 for n in steps]  # all a trained final fit would learn
+            log.info("no axis keeps its Gaussians (%s): the final fit is least squares at those levels",
+                     "/".join(capacity.LEVELS[v] for v in levels))
     parts = None
     if plain:
         final = fit(model, data, optim, seed=seed, writer=writer, stop_at_step=steps[0], **fit_kwargs)
@@ -198,11 +208,7 @@ def fit_by_run(model: nn.Module, data: RunsData, optim: Callable | None = None, 
         out.update(spread_figures([{f"val/rmse_{a}_dps": float(np.mean([members[j][f"val/rmse_{a}_dps"]
                                                                           for members in figures[k]])) for a in AXES}
                                    for k in range(len(starts)) for j in range(len(starts[k].seeds))]))
-    if getattr(model, "select_capacity", False):  # each axis's level, from every fold's held-out run
-        from gyronet.training import capacity
-
-        errors = capacity.from_metrics(folds)
-        levels = capacity.choose(errors)
+    if levels is not None:
         for part in parts or []:  # the bar's members as deployed
             capacity.refit(part, data, levels)
         capacity.apply(model, data, levels)
