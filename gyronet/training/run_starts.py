@@ -95,7 +95,7 @@ def most_steps(figures: Sequence[Sequence[dict]]) -> int | None:
 
     The final fit has every run, more data than any fold, so it overfits no sooner than the fold
     that stopped last. The median undercounts where the folds disagree, and a fit stopped short
-    extrapolates worse (survey sensors 102, 103 and 105 as two runs: the worst axis 0-4 % better).
+    extrapolates worse (survey sensors 102, 103 and 105 as two runs: the worst axis 1-5 % better).
     """
     best = [m["train/best_step"] for members in figures for m in members if "train/best_step" in m]
     return int(max(best)) if best else None

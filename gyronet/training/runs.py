@@ -149,8 +149,9 @@ def fit_by_run(model: nn.Module, data: RunsData, optim: Callable | None = None, 
     on the held-out run) and scored on it. ``val/*`` are the means over the folds. The final model
     is trained on every run for the largest of the folds' best step counts: with no run left to
     stop on, the folds say how long a fit on one run fewer trains before it overfits, and with more
-    data the final fit overfits no sooner (a closed-form model needs no count). With ``validate_init`` every start is fitted
-    so and mixed per axis by the held-out runs (``gyronet.training.run_starts``).
+    data the final fit overfits no sooner (a closed-form model needs no count, nor one whose chosen
+    capacity keeps no Gaussians). With ``validate_init`` every start is fitted so and mixed per
+    axis by the held-out runs (``gyronet.training.run_starts``).
 
     Returns
     -------
