@@ -191,7 +191,6 @@ def test_with_no_axis_keeping_its_gaussians_the_final_fit_is_least_squares_at_th
     assert [metrics[f"model/level_{a}"] for a in "xyz"] == [0, 1, 2]
     x, y = torch.as_tensor(data.train.x), torch.as_tensor(data.train.y)
     fresh, offsets = copy.deepcopy(model), RunOffsets(data.train.run, 2)
-    fresh.center_init = "kmeans"
     offsets.init_from_data(fresh, x, y, 5)  # another seed's start, never trained
     data.offsets, bundle_offsets = offsets, data.offsets
     capacity.apply(fresh, data, [0, 1, 2])

@@ -18,7 +18,7 @@ import torch
 
 from gyronet.bundle.schema import KALMAN_FILE, META_FILE, check_model, validate_meta
 from gyronet.recordings.data import GYRO_COLUMNS
-from gyronet.model.error_bar import from_meta
+from gyronet.model.error_bar import CHUNK_ROWS, from_meta
 from gyronet.errors import BundleError, GyronetError
 from gyronet.bundle.compensated import Compensated, CompensatedRow, RateChangeError, build_meta
 from gyronet.bundle.io import read_bundle
@@ -30,10 +30,6 @@ from gyronet.model.small_model import SMALL_ROWS, row_model
 
 log = logging.getLogger(__name__)
 
-# Rows per model call on a long batch: the intermediates of 8 k rows stay in cache, which makes a
-# whole recording several times faster than one call on all of it (scripts/bench.py); 64 k rows
-# did as well for one start's 12 Gaussians, and 13-23 % worse than 8 k for the mixed default and its bar.
-CHUNK_ROWS = 8192
 # a data rate this far from the bundle's fs_hz (relative) is the bundle's rate with a clock error
 RATE_TOLERANCE = 0.05
 
