@@ -32,7 +32,7 @@ def _method(model: str, overrides: list) -> dict:
 
 
 @command("survey", schemas={"n_sensors": int, "first_seed": int, "jobs": int, "fs_hz": float, "startup_s": float,
-                            "reuse": bool, "keep_records": bool, "train_overrides": list,
+                            "reuse": bool, "keep_records": bool, "train_overrides": list, "more_train_histories": list,
                             "train_history": "gyronet.analysis.survey.History", "check_history": "gyronet.analysis.survey.History",
                             "goals": "gyronet.analysis.survey.table.goal_keys"})
 def main(cfg: DictConfig) -> None:
@@ -46,20 +46,33 @@ def main(cfg: DictConfig) -> None:
         if cfg[key] not in methods and not (key == "reference" and cfg[key] is None):
             raise GyronetError(f"{key}={cfg[key]} is not one of the methods ({', '.join(methods)})")
     histories = {k: History(**OmegaConf.to_container(cfg[k], resolve=True)) for k in ("train_history", "check_history")}
+    more = tuple(_history(item) for item in cfg.more_train_histories)
     spec = SurveySpec(methods=methods, distribution=cfg.distribution, fs_hz=cfg.fs_hz, startup_s=cfg.startup_s,
                       simulate=OmegaConf.to_container(cfg.simulate, resolve=True), keep_records=cfg.keep_records,
-                      **histories)
+                      more_train_histories=more, **histories)
     out_dir = Path(HydraConfig.get().runtime.output_dir)
     seeds = range(cfg.first_seed, cfg.first_seed + cfg.n_sensors)
     results = survey(seeds, spec, out_dir, jobs=cfg.jobs, reuse=cfg.reuse, progress=cfg.progress)
     summary = summarize(results, cfg.ours, cfg.reference, OmegaConf.to_container(cfg.goals))
     settings = {"distribution": cfg.distribution, "startup_s": cfg.startup_s, "fs_hz": cfg.fs_hz,
-                "train": _history_text(histories["train_history"]), "check": _history_text(histories["check_history"]),
+                "train": " + ".join(_history_text(h) for h in (histories["train_history"], *more)),
+                "check": _history_text(histories["check_history"]),
                 "methods": OmegaConf.to_container(cfg.methods), "train_overrides": list(cfg.train_overrides),
                 "first_seed": cfg.first_seed}
     output = write_outputs(results, summary, settings, cfg.output)
     log.info("survey table %s (and .json, _sensors.csv), %.0f s a sensor (median):\n%s", output,
              summary["seconds_per_sensor"], to_markdown(summary, settings))
+
+
+def _history(item) -> History:
+    """One of ``more_train_histories``, or a one-line error naming the settings a history takes."""
+    known = ", ".join(History.__dataclass_fields__)
+    if not isinstance(item, DictConfig):
+        raise GyronetError(f"more_train_histories: each item is a history {{{known}}}, got {item!r}")
+    try:
+        return History(**OmegaConf.to_container(item, resolve=True))
+    except TypeError as err:
+        raise GyronetError(f"more_train_histories: {err} (a history takes {known})") from None
 
 
 def _history_text(history: History) -> str:

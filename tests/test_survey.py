@@ -9,6 +9,7 @@ import json
 import re
 import runpy
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -18,6 +19,8 @@ from gyronet.sim import draw_sensor, simulate
 from gyronet.sim.sensor import SURVEY_FIELDS, SensorModel
 from gyronet.sim.survey_sensor import SURVEY_RANGES
 from gyronet.analysis.survey import summarize, to_markdown
+from gyronet.analysis.survey.sensor_run import turn_on_bias
+from gyronet.recordings.data import load_truth
 
 from conftest import ROOT
 
@@ -234,7 +237,26 @@ def test_the_survey_command_writes_its_table_and_resumes(tmp_path, monkeypatch, 
     assert "2 of 2 sensors reused" in (out / "survey.log").read_text()
 
 
+def test_more_training_histories_train_every_method_as_a_campaign(tmp_path, monkeypatch):
+    out = tmp_path / "campaign"
+    second = "{profile:cycle,seed:3,profile_options:{dwell_s:300,rate_c_per_min:4}}"
+    assert run_survey(monkeypatch, *TINY[1:], "n_sensors=1", "reference=null", "~methods.PX4-script",
+                      f"more_train_histories=[{second}]", "keep_records=true", f"hydra.run.dir={out}") == 0
+    folder = out / "sensors" / "sensor_0000"
+    for method in ("gyronet", "PX4-cubic"):  # each trained on both power-ups, by run
+        runs = json.loads((folder / method / "compensator" / "meta.json").read_text())["runs"]
+        assert [Path(r["path"]).name for r in runs] == ["train.csv", "train2.csv"]
+    result = json.loads((folder / "result.json").read_text())
+    biases = [turn_on_bias(load_truth(folder / f"{name}.csv").columns) for name in ("check", "train", "train2")]
+    assert result["turn_on_difference_dps"] == pytest.approx(biases[0] - (biases[1] + biases[2]) / 2, abs=1e-12)
+    assert abs(biases[1] - biases[2]).min() > 1e-4, "each power-up its own turn-on bias"
+    settings = json.loads((out / "survey.json").read_text())["settings"]
+    assert settings["train"].count("profile=cycle") == 2
+
+
 @pytest.mark.parametrize("args, expected", [
+    (["more_train_histories=[5]"], "more_train_histories: each item is a history {profile, seed, "),
+    (["more_train_histories=[{seeds:3}]"], "more_train_histories: History.__init__() got an unexpected keyword"),
     (["n_sensors=0"], "n_sensors must be at least 1"),
     (["jobs=0"], "jobs must be a whole number >= 1"),
     (["+methods.mine=nope"], "methods: no conf/model/nope.yaml"),

@@ -1,4 +1,4 @@
-"""One sensor of the survey: simulate two histories, train every method on one, score each on the other.
+"""One sensor of the survey: simulate its histories, train every method on the training record(s), score on another.
 
 The held-out history is scored against the simulator's truth, from the end of the start-up window
 on, three ways (the same blocks for all three):
@@ -9,7 +9,8 @@ on, three ways (the same blocks for all three):
   is what a perfect drift model leaves when deployed so: the noise minus the window's mean noise,
   a constant the offset carries into every later sample (each sensor draws its own).
 - ``turn_on_removed``: no start-up offset, the difference between the two runs' true turn-on
-  biases taken from the truth: the temperature model alone.
+  biases taken from the truth (a campaign's: the held-out run's less its runs' mean): the
+  temperature model alone.
 - ``as_is``: no start-up offset at all (the turn-on bias difference stays in the residual).
 """
 from __future__ import annotations
@@ -71,6 +72,9 @@ class SurveySpec:
         The sensors' distribution (:func:`gyronet.sim.sensor.draw_sensor`).
     train_history, check_history
         The history each sensor is trained on and the one it is scored on.
+    more_train_histories
+        More training records, each its own power-up (its own turn-on bias and noise): with any,
+        every method trains on all of them as a campaign (``data.paths``, leave-one-run-out).
     fs_hz
         Sampling rate of both records, Hz.
     startup_s
@@ -86,6 +90,7 @@ class SurveySpec:
     distribution: str = "survey"
     train_history: History = History("cycle", 1)
     check_history: History = History("random", 2)
+    more_train_histories: tuple[History, ...] = ()
     fs_hz: float = 10.0
     startup_s: float = 600.0
     simulate: Mapping[str, Any] = field(default_factory=dict)
@@ -94,6 +99,8 @@ class SurveySpec:
     def fingerprint(self) -> str:
         """A hash of everything that decides a sensor's result (``keep_records`` aside): resumed only if equal."""
         settings = {k: v for k, v in dataclasses.asdict(self).items() if k != "keep_records"}
+        if not settings["more_train_histories"]:  # results from before campaigns still resume
+            del settings["more_train_histories"]
         for key in ("train_history", "check_history"):  # results from before the per-record setting still resume
             if not settings[key]["simulate"]:
                 del settings[key]["simulate"]
@@ -137,15 +144,19 @@ def merged(base: Mapping[str, Any], extra: Mapping[str, Any]) -> dict[str, Any]:
     return out
 
 
-def train_method(train_csv: Path, method: Mapping[str, Any], out_dir: Path) -> Path:
-    """Train one method on ``train_csv`` as ``train.py`` would (``gyronet.training.pipeline.train_run``); its bundle."""
+def train_method(train_csvs: list[Path], method: Mapping[str, Any], out_dir: Path) -> Path:
+    """Train one method on ``train_csvs`` as ``train.py`` would (``gyronet.training.pipeline.train_run``); its bundle.
+
+    One record is ``data.path``; several are runs of a campaign, ``data.paths``.
+    """
     from gyronet.training.axis_lag import with_axis_lags
     from gyronet.training.pipeline import train_run
     from gyronet.training.runs import training_data
 
-    data_options = {k: (str(train_csv) if v == TRAIN_PATH else v) for k, v in method["data"].items()
-                    if k != "_target_"}
-    data_options.pop("_convert_", None)
+    data_options = {k: v for k, v in method["data"].items() if k not in ("_target_", "_convert_")}
+    if data_options.get("path") == TRAIN_PATH:
+        one = len(train_csvs) == 1
+        data_options.update(path=str(train_csvs[0]) if one else None, paths=None if one else [str(p) for p in train_csvs])
     data = training_data(**data_options)
     model = build(method["model"], n_inputs=data.n_features)
     data, model = with_axis_lags(data, lambda n, columns: build(method["model"], n_inputs=n, axis_columns=columns),
@@ -233,15 +244,18 @@ def run_sensor(sensor_seed: int, spec: SurveySpec, folder: str | Path, reuse: bo
         log.info("sensor %d: settings changed since %s, run again", sensor_seed, result_path)
     start = time.perf_counter()
     folder.mkdir(parents=True, exist_ok=True)
-    train_csv = simulate_history(folder, "train", sensor_seed, spec.train_history, spec)
+    train_csvs = [simulate_history(folder, "train" if k == 0 else f"train{k + 1}", sensor_seed, history, spec)
+                  for k, history in enumerate((spec.train_history, *spec.more_train_histories))]
     check_csv = simulate_history(folder, "check", sensor_seed, spec.check_history, spec)
-    difference = turn_on_bias(load_truth(check_csv).columns) - turn_on_bias(load_truth(train_csv).columns)
+    # a campaign's model keeps the mean of its runs' constants (gyronet.training.run_offsets)
+    trained_bias = np.mean([turn_on_bias(load_truth(path).columns) for path in train_csvs], axis=0)
+    difference = turn_on_bias(load_truth(check_csv).columns) - trained_bias
     sensor = json.loads(load_truth(check_csv).meta["sensor_model"])
     methods = {}
     try:
         for name, method in spec.methods.items():
             method_start = time.perf_counter()
-            bundle = train_method(train_csv, method, folder / _folder_name(name))
+            bundle = train_method(train_csvs, method, folder / _folder_name(name))
             methods[name] = {**score_bundle(bundle, check_csv, spec.startup_s, difference),
                              "seconds": time.perf_counter() - method_start}
     finally:
