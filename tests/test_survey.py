@@ -240,10 +240,10 @@ def test_the_survey_command_writes_its_table_and_resumes(tmp_path, monkeypatch, 
 def test_more_training_histories_train_every_method_as_a_campaign(tmp_path, monkeypatch):
     out = tmp_path / "campaign"
     second = "{profile:cycle,seed:3,profile_options:{dwell_s:300,rate_c_per_min:4}}"
-    assert run_survey(monkeypatch, *TINY[1:], "n_sensors=1", "reference=null", "~methods.PX4-script",
-                      f"more_train_histories=[{second}]", "keep_records=true", f"hydra.run.dir={out}") == 0
+    assert run_survey(monkeypatch, *TINY[1:], "n_sensors=1", f"more_train_histories=[{second}]",
+                      "keep_records=true", f"hydra.run.dir={out}") == 0
     folder = out / "sensors" / "sensor_0000"
-    for method in ("gyronet", "PX4-cubic"):  # each trained on both power-ups, by run
+    for method in ("gyronet", "PX4-cubic", "PX4-script"):  # each trained on both power-ups, by run
         runs = json.loads((folder / method / "compensator" / "meta.json").read_text())["runs"]
         assert [Path(r["path"]).name for r in runs] == ["train.csv", "train2.csv"]
     result = json.loads((folder / "result.json").read_text())
@@ -252,6 +252,20 @@ def test_more_training_histories_train_every_method_as_a_campaign(tmp_path, monk
     assert abs(biases[1] - biases[2]).min() > 1e-4, "each power-up its own turn-on bias"
     settings = json.loads((out / "survey.json").read_text())["settings"]
     assert settings["train"].count("profile=cycle") == 2
+
+
+def test_a_sensor_another_process_is_running_is_refused_in_one_line(tmp_path):
+    """A stopped survey's workers finished their sensors while a second survey in the same folder ran them too."""
+    fcntl = pytest.importorskip("fcntl")
+    from gyronet.analysis.survey import SurveySpec, run_sensor
+
+    folder = tmp_path / "sensor_0007"
+    folder.mkdir()
+    with open(folder / ".lock", "w") as held:
+        fcntl.flock(held, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        with pytest.raises(GyronetError, match="another process is running this sensor"):
+            run_sensor(7, SurveySpec(methods={}), folder)
+    assert not list(folder.glob("*.csv")) and not (folder / "result.json").exists()
 
 
 @pytest.mark.parametrize("args, expected", [

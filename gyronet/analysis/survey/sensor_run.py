@@ -15,6 +15,7 @@ on, three ways (the same blocks for all three):
 """
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import functools
 import hashlib
@@ -147,16 +148,17 @@ def merged(base: Mapping[str, Any], extra: Mapping[str, Any]) -> dict[str, Any]:
 def train_method(train_csvs: list[Path], method: Mapping[str, Any], out_dir: Path) -> Path:
     """Train one method on ``train_csvs`` as ``train.py`` would (``gyronet.training.pipeline.train_run``); its bundle.
 
-    One record is ``data.path``; several are runs of a campaign, ``data.paths``.
+    One record is ``data.path``; several are runs of a campaign, ``data.paths`` (validated by run).
     """
     from gyronet.training.axis_lag import with_axis_lags
     from gyronet.training.pipeline import train_run
     from gyronet.training.runs import training_data
 
-    data_options = {k: v for k, v in method["data"].items() if k not in ("_target_", "_convert_")}
-    if data_options.get("path") == TRAIN_PATH:
-        one = len(train_csvs) == 1
-        data_options.update(path=str(train_csvs[0]) if one else None, paths=None if one else [str(p) for p in train_csvs])
+    one = len(train_csvs) == 1  # else a campaign: validated by its runs, so PX4's val_path=path goes too
+    data_options = {k: ((str(train_csvs[0]) if one else None) if v == TRAIN_PATH else v)
+                    for k, v in method["data"].items() if k not in ("_target_", "_convert_")}
+    if not one:
+        data_options["paths"] = [str(p) for p in train_csvs]
     data = training_data(**data_options)
     model = build(method["model"], n_inputs=data.n_features)
     data, model = with_axis_lags(data, lambda n, columns: build(method["model"], n_inputs=n, axis_columns=columns),
@@ -244,6 +246,34 @@ def run_sensor(sensor_seed: int, spec: SurveySpec, folder: str | Path, reuse: bo
         log.info("sensor %d: settings changed since %s, run again", sensor_seed, result_path)
     start = time.perf_counter()
     folder.mkdir(parents=True, exist_ok=True)
+    with _one_process_at_a_time(folder):
+        result = _simulate_train_score(sensor_seed, spec, folder, fingerprint)
+    result["seconds"] = time.perf_counter() - start
+    with atomic_output(result_path) as tmp:
+        tmp.write_text(json.dumps(result, indent=1) + "\n")
+    return result
+
+
+@contextlib.contextmanager
+def _one_process_at_a_time(folder: Path):
+    """Hold ``folder``'s lock while its sensor runs. The workers of a stopped survey finish their sensors, and a
+    second survey in the same folder ran one of them at the same time: each deleted records the other was reading."""
+    try:
+        import fcntl
+    except ImportError:  # not POSIX: no lock
+        yield
+        return
+    with open(folder / ".lock", "w") as handle:
+        try:
+            fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            raise GyronetError(f"{folder}: another process is running this sensor (a survey in the same folder, or "
+                               "the workers of one just stopped): run the same command again when it is done") from None
+        yield
+
+
+def _simulate_train_score(sensor_seed: int, spec: SurveySpec, folder: Path, fingerprint: str) -> dict[str, Any]:
+    """:func:`run_sensor`'s work, its result without the time taken."""
     train_csvs = [simulate_history(folder, "train" if k == 0 else f"train{k + 1}", sensor_seed, history, spec)
                   for k, history in enumerate((spec.train_history, *spec.more_train_histories))]
     check_csv = simulate_history(folder, "check", sensor_seed, spec.check_history, spec)
@@ -260,15 +290,11 @@ def run_sensor(sensor_seed: int, spec: SurveySpec, folder: str | Path, reuse: bo
                              "seconds": time.perf_counter() - method_start}
     finally:
         _forget_records()
-    result = {"sensor_seed": int(sensor_seed), "fingerprint": fingerprint, "methods": methods,
-              "turn_on_difference_dps": difference.tolist(), **describe_sensor(sensor), "sensor": sensor,
-              "seconds": time.perf_counter() - start}
     if not spec.keep_records:
         for path in folder.glob("*.csv"):
             path.unlink()
-    with atomic_output(result_path) as tmp:
-        tmp.write_text(json.dumps(result, indent=1) + "\n")
-    return result
+    return {"sensor_seed": int(sensor_seed), "fingerprint": fingerprint, "methods": methods,
+            "turn_on_difference_dps": difference.tolist(), **describe_sensor(sensor), "sensor": sensor}
 
 
 def _forget_records() -> None:
