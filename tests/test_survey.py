@@ -19,7 +19,7 @@ from gyronet.sim import draw_sensor, simulate
 from gyronet.sim.sensor import SURVEY_FIELDS, SensorModel
 from gyronet.sim.survey_sensor import SURVEY_RANGES
 from gyronet.analysis.survey import summarize, to_markdown
-from gyronet.analysis.survey.sensor_run import turn_on_bias
+from gyronet.analysis.survey.scoring import turn_on_bias
 from gyronet.recordings.data import load_truth
 
 from conftest import ROOT
@@ -150,7 +150,7 @@ def test_a_history_s_own_simulate_settings_change_that_record_alone(tmp_path):
 
 def test_a_perfect_drift_model_deployed_with_a_start_up_offset_scores_the_floor():
     """The deployed floor has the window's noise in it: else a perfect model would score above 1."""
-    from gyronet.analysis.survey.sensor_run import deployed_floor_truth
+    from gyronet.analysis.survey.scoring import deployed_floor_truth
     from gyronet.training.evaluate import residual_report
 
     sim = simulate("random", 1.0, seed=2, sensor_seed=5, duration_s=7200, sensor={"distribution": "survey"})

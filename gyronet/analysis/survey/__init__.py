@@ -1,6 +1,6 @@
 """The survey: many simulated sensors from a wide distribution, each trained on one history and scored on another.
 
-One sensor is :func:`run_sensor` (:mod:`.sensor_run`); :func:`survey` runs many in parallel
+One sensor is :func:`run_sensor` (:mod:`.sensor_run`, scored by :mod:`.scoring`); :func:`survey` runs many in parallel
 (joblib, one process a job), resuming the sensors already finished; :mod:`.table` makes the
 README's table (median, 90th percentile and worst of each sensor's worst axis).
 """
@@ -13,8 +13,8 @@ from pathlib import Path
 from typing import Any, Sequence
 
 from gyronet.errors import GyronetError
-from gyronet.analysis.survey.sensor_run import (RESULT_FILE, TRAIN_PATH, VARIANTS, History, SurveySpec, build, run_sensor,
-                                       score_bundle)
+from gyronet.analysis.survey.scoring import VARIANTS, score_bundle
+from gyronet.analysis.survey.sensor_run import RESULT_FILE, TRAIN_PATH, History, SurveySpec, build, run_sensor
 from gyronet.analysis.survey.table import goal_keys, sensors_csv, summarize, to_markdown, worst_axis, write_outputs
 
 log = logging.getLogger(__name__)

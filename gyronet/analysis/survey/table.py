@@ -16,7 +16,8 @@ from gyronet.model.recalibration import HOUR_RMS_LIMIT
 from gyronet.recordings.data import AXES
 from gyronet.training.sigma_table import GOAL
 from gyronet.errors import GyronetError
-from gyronet.analysis.survey.sensor_run import VARIANTS, describe_sensor
+from gyronet.analysis.survey.scoring import VARIANTS
+from gyronet.analysis.survey.sensor_run import describe_sensor
 
 log = logging.getLogger(__name__)
 
