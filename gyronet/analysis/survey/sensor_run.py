@@ -179,10 +179,10 @@ def run_sensor(sensor_seed: int, spec: SurveySpec, folder: str | Path, reuse: bo
     start = time.perf_counter()
     folder.mkdir(parents=True, exist_ok=True)
     with _one_process_at_a_time(folder):
-        result = _simulate_train_score(sensor_seed, spec, folder, fingerprint)
-    result["seconds"] = time.perf_counter() - start
-    with atomic_output(result_path) as tmp:
-        tmp.write_text(json.dumps(result, indent=1) + "\n")
+        result = {**_simulate_train_score(sensor_seed, spec, folder, fingerprint),
+                  "seconds": time.perf_counter() - start}
+        with atomic_output(result_path) as tmp:
+            tmp.write_text(json.dumps(result, indent=1) + "\n")
     return result
 
 
