@@ -211,8 +211,9 @@ def _simulate_train_score(sensor_seed: int, spec: SurveySpec, folder: Path, fing
     check_csv = simulate_history(folder, "check", sensor_seed, spec.check_history, spec)
     # a campaign's model keeps the mean of its runs' constants (gyronet.training.run_offsets)
     trained_bias = np.mean([turn_on_bias(load_truth(path).columns) for path in train_csvs], axis=0)
-    difference = turn_on_bias(load_truth(check_csv).columns) - trained_bias
-    sensor = json.loads(load_truth(check_csv).meta["sensor_model"])
+    check_truth = load_truth(check_csv)
+    difference = turn_on_bias(check_truth.columns) - trained_bias
+    sensor = json.loads(check_truth.meta["sensor_model"])
     methods = {}
     try:
         for name, method in spec.methods.items():
