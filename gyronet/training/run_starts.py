@@ -19,9 +19,8 @@ import numpy as np
 import torch
 from torch import nn
 
-from gyronet.recordings.data import AXES
 from gyronet.training.dataset import residual_block_means
-from gyronet.training.starts import member_seeds, mix_into, stack_weights
+from gyronet.training.starts import fit_members, member_seeds, mix_into, stack_weights
 from gyronet.training.steps import predict
 
 log = logging.getLogger(__name__)
@@ -55,17 +54,15 @@ def starts_of(model: nn.Module, data: Any, seed: int) -> list[Start]:
 def fit_start(start: Start, data: Any, fit: Callable, optim: Callable | None, options: Mapping[str, Any],
               steps: int | None = None) -> tuple[list[dict[str, float]], nn.Module, torch.Tensor | None]:
     """One start's fit on ``data``: each member's figures, their equal-weight average and its run offsets' raw values."""
-    figures, members, offsets = [], [], []
-    for seed in start.seeds:
-        member = copy.deepcopy(start.model)
-        figures.append(fit(member, data, optim, seed=seed, stop_at_step=steps, **options))
-        members.append(member)
+    offsets = []
+
+    def fit_one(member: nn.Module, seed: int) -> dict[str, float]:
+        figures = fit(member, data, optim, seed=seed, stop_at_step=steps, **options)
         if getattr(data, "offsets", None) is not None:
             offsets.append(data.offsets.raw.detach().clone())
-    if len(members) == 1:
-        return figures, members[0], offsets[0] if offsets else None
-    average = copy.deepcopy(start.model)
-    mix_into(average, members, np.full((len(members), len(AXES)), 1.0 / len(members)))
+        return figures
+
+    figures, _, average = fit_members(start.model, start.seeds, fit_one)
     return figures, average, torch.stack(offsets).mean(0) if offsets else None
 
 

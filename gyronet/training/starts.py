@@ -121,22 +121,38 @@ def member_seeds(seed: int, members: int) -> list[int]:
     return [seed] + [seed * members + j + 1_000_003 for j in range(1, members)]
 
 
+def fit_members(template: nn.Module, seeds: Sequence[int], fit_one: Callable[[nn.Module, int], dict]
+                ) -> tuple[list[dict], list[nn.Module], nn.Module]:
+    """A deep copy of ``template`` fitted per seed (``fit_one(member, seed)`` returns its figures), and their average.
+
+    Returns each member's figures, the members and their equal-weight average (the member itself when one).
+    """
+    figures, members = [], []
+    for seed in seeds:
+        member = copy.deepcopy(template)
+        figures.append(fit_one(member, seed))
+        members.append(member)
+    if len(members) == 1:
+        return figures, members, members[0]
+    average = copy.deepcopy(template)
+    _average_into(average, members)
+    return figures, members, average
+
+
 def _fit_start(model: nn.Module, init: str, data: DriftData, optim: Callable | None,
                options: Mapping[str, Any], fit: Callable) -> tuple[dict[str, float], list[tuple[dict, nn.Module]], nn.Module]:
     """One start's validated fits (``kmeans_members`` seeds for k-means) and their equal-weight average."""
     seeds = member_seeds(options["seed"], getattr(model, "kmeans_members", 1)) if init == "kmeans" else [options["seed"]]
-    runs = []
-    for seed in seeds:
-        member = copy.deepcopy(model)
-        member.center_init, member.validate_init = init, False
-        runs.append((fit(member, data, optim, **{**options, "seed": seed}), member))
+    template = copy.deepcopy(model)
+    template.center_init, template.validate_init = init, False
+    figures, members, average = fit_members(template, seeds,
+                                            lambda member, seed: fit(member, data, optim, **{**options, "seed": seed}))
+    runs = list(zip(figures, members))
     if len(runs) == 1:
-        return runs[0][0], runs, runs[0][1]
-    average = copy.deepcopy(model)
-    _average_into(average, [m for _, m in runs])
-    metrics = {**min((f for f, _ in runs), key=lambda f: f["val/rmse_dps"]), **validation_metrics(average, data)}
+        return figures[0], runs, average
+    metrics = {**min(figures, key=lambda f: f["val/rmse_dps"]), **validation_metrics(average, data)}
     for axis in AXES:
-        levels = [f.get(f"model/level_{axis}") for f, _ in runs]
+        levels = [f.get(f"model/level_{axis}") for f in figures]
         if None not in levels:
             metrics[f"model/level_{axis}"] = float(max(levels))
     return metrics, runs, average
@@ -220,4 +236,4 @@ def spread_figures(tried: Sequence[Mapping[str, float]]) -> dict[str, float]:
     return out
 
 
-__all__ = ["fit_every_start", "held_out_residuals", "member_seeds", "mix_into", "spread_figures", "stack_weights"]
+__all__ = ["fit_every_start", "fit_members", "held_out_residuals", "member_seeds", "mix_into", "spread_figures", "stack_weights"]
