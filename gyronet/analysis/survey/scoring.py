@@ -22,7 +22,7 @@ import numpy as np
 from gyronet.bundle.compensator import Compensator
 from gyronet.bundle.offline import compensate_as_deployed
 from gyronet.errors import GyronetError
-from gyronet.recordings.data import AXES, load_recording, load_truth
+from gyronet.recordings.data import AXES, Recording
 from gyronet.training.dataset import static_rate_dps
 from gyronet.training.sigma_table import score_against_truth
 from gyronet.training.train import residual_report
@@ -50,13 +50,12 @@ def deployed_floor_truth(truth: Mapping[str, np.ndarray], keep: np.ndarray) -> d
     return out
 
 
-def score_bundle(bundle: Path, check_csv: Path, startup_s: float, turn_on_difference_dps: np.ndarray) -> dict[str, Any]:
-    """Residual / floor per axis of one bundle on the held-out record, each of :data:`VARIANTS`."""
-    recording = load_recording(check_csv)
-    truth = load_truth(check_csv).columns
+def score_bundle(bundle: Path, recording: Recording, truth: Mapping[str, np.ndarray], startup_s: float,
+                 turn_on_difference_dps: np.ndarray) -> dict[str, Any]:
+    """Residual / floor per axis of one bundle on the held-out record and its truth's columns, each of :data:`VARIANTS`."""
     keep = recording.time_s >= recording.time_s[0] + startup_s
     if keep.sum() < 2:
-        raise GyronetError(f"{check_csv}: nothing left to score after startup_s={startup_s:g} s")
+        raise GyronetError(f"{recording.path}: nothing left to score after startup_s={startup_s:g} s")
     kept_truth = {k: v[keep] for k, v in truth.items()}
     compensator = Compensator.load(bundle)
     rates = {}

@@ -20,7 +20,7 @@ import numpy as np
 
 from gyronet.analysis.survey.scoring import score_bundle, turn_on_bias
 from gyronet.atomic import atomic_output
-from gyronet.recordings.data import load_truth
+from gyronet.recordings.data import load_recording, load_truth
 from gyronet.errors import GyronetError
 
 log = logging.getLogger(__name__)
@@ -211,7 +211,7 @@ def _simulate_train_score(sensor_seed: int, spec: SurveySpec, folder: Path, fing
     check_csv = simulate_history(folder, "check", sensor_seed, spec.check_history, spec)
     # a campaign's model keeps the mean of its runs' constants (gyronet.training.run_offsets)
     trained_bias = np.mean([turn_on_bias(load_truth(path).columns) for path in train_csvs], axis=0)
-    check_truth = load_truth(check_csv)
+    check, check_truth = load_recording(check_csv), load_truth(check_csv)  # read once, scored for every method
     difference = turn_on_bias(check_truth.columns) - trained_bias
     sensor = json.loads(check_truth.meta["sensor_model"])
     methods = {}
@@ -219,7 +219,7 @@ def _simulate_train_score(sensor_seed: int, spec: SurveySpec, folder: Path, fing
         for name, method in spec.methods.items():
             method_start = time.perf_counter()
             bundle = train_method(train_csvs, method, folder / _folder_name(name))
-            methods[name] = {**score_bundle(bundle, check_csv, spec.startup_s, difference),
+            methods[name] = {**score_bundle(bundle, check, check_truth.columns, spec.startup_s, difference),
                              "seconds": time.perf_counter() - method_start}
     finally:
         _forget_records()
