@@ -287,6 +287,44 @@ def test_validate_init_mixes_the_starts_per_axis_by_their_held_out_residuals(tmp
     assert_close(loaded(x), model(x).detach())
 
 
+class _PowerUp(torch.nn.Module):
+    """A drift of ``window_dps`` on every axis over the first 600 s (feature 0 is the time), 0 after."""
+
+    def __init__(self, window_dps):
+        super().__init__()
+        self.window_dps = window_dps
+
+    def forward(self, x):
+        return torch.where(x[:, :1] < 600.0, x.new_tensor(self.window_dps), x.new_zeros(())).expand(len(x), 3)
+
+
+def test_mixing_as_deployed_charges_a_start_its_error_over_the_records_power_up():
+    """With data.val_startup_s each start's held-out blocks are scored less its mean residual over the
+    record's first val_startup_s s: a start-up offset carries that error into every later sample."""
+    rng = np.random.default_rng(0)
+    time_s = np.arange(0.0, 6000.0, 10.0)
+    y = np.where(time_s[:, None] < 600.0, 0.01, 0.0) + np.zeros((len(time_s), 3))
+    held = (time_s >= 3000) & (time_s < 4200)
+    y[held] += rng.normal(0.0, 1e-3, (held.sum(), 3))
+    x = np.column_stack([time_s, np.zeros((len(time_s), 2))])
+    data = SimpleNamespace(train=Blocks(x[~held], y[~held], time_s[~held]), val=Blocks(x[held], y[held], time_s[held]),
+                           val_full=(time_s[held], x[held], y[held]), recording=SimpleNamespace(time_s=time_s),
+                           val_path=None, val_startup_s=0.0)
+    misses, follows = _PowerUp(0.0), _PowerUp(0.01)  # alike on the held-out blocks; one misses the power-up
+    as_is = held_out_residuals(misses, data)
+    assert_close(held_out_residuals(follows, data), as_is, rtol=0, atol=0)
+    assert stack_weights(as_is, held_out_residuals(follows, data))[:, 0].tolist() == [1.0, 0.0]  # a tie: the first
+    data.val_startup_s = 600.0
+    assert_close(held_out_residuals(misses, data), as_is - 0.01, rtol=0, atol=1e-15)
+    deployed = [held_out_residuals(m, data) for m in (misses, follows)]
+    assert stack_weights(*deployed)[:, 0].tolist() == [0.0, 1.0]
+    # a validation recording of its own: its residual less its own first 600 s (a held-out power-up)
+    data.val_path, data.val_full = "other.csv", (time_s, x, y)
+    missed, followed = (held_out_residuals(m, data) for m in (misses, follows))
+    assert_close(missed[:10], followed[:10], rtol=0, atol=1e-15)  # the window's ten 60 s blocks
+    assert_close(missed[10:], followed[10:] - 0.01, rtol=0, atol=1e-15)
+
+
 def test_kmeans_members_average_fits_from_disjoint_seeds_and_report_the_spread():
     """``kmeans_members``: the k-means start is the mean of fits from other seeds; the spread is reported."""
     x, y, _ = _knee_data()

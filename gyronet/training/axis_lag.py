@@ -31,8 +31,8 @@ import torch
 
 from gyronet.recordings.data import AXES
 from gyronet.training.dataset import DriftData, residual_block_means
-from gyronet.training.run_data import load_runs, stack_runs
-from gyronet.training.runs import RunsData, minus_startup_offset
+from gyronet.training.run_data import load_runs, minus_startup_offset, stack_runs
+from gyronet.training.runs import RunsData
 
 log = logging.getLogger(__name__)
 

@@ -40,12 +40,8 @@ def static_rate_dps(recording: Recording, override: Sequence[float] | None = Non
     From ``override`` if given, else from the recording's ``# static_rate_dps=x,y,z`` metadata line,
     else zero: the compensator then learns the Earth's rate as part of the bias, as PX4 does.
     """
-    if override is not None:
-        values = [float(v) for v in override]
-    elif "static_rate_dps" in recording.meta:
-        values = [float(v) for v in recording.meta["static_rate_dps"].split(",")]
-    else:
-        values = [0.0, 0.0, 0.0]
+    given = override if override is not None else recording.meta.get("static_rate_dps", "0,0,0").split(",")
+    values = [float(v) for v in given]
     if len(values) != 3:
         raise GyronetError(f"static_rate_dps needs 3 values (x, y, z), got {values}")
     return np.asarray(values)
@@ -184,6 +180,8 @@ class DriftData(TrainingData):
         True rate during the test, deg/s per axis; see ``static_rate_dps()``.
     rate_tau_s
         If given, the time constant of every ``rate`` feature (a single knob for sweeps).
+    val_startup_s
+        Mix the starts as deployed with a start-up offset over this many s (``gyronet.training.starts``; 0: as is).
     """
 
     path: str
@@ -195,6 +193,7 @@ class DriftData(TrainingData):
     val_path: str | None = None
     static_rate_dps: Sequence[float] | None = None
     rate_tau_s: float | None = None
+    val_startup_s: float = 0.0
 
     def __post_init__(self) -> None:
         self.features = [dict(s) for s in self.features]
@@ -236,14 +235,12 @@ class DriftData(TrainingData):
     def _check(self, recording: Recording, val_rec: Recording | None) -> None:
         """Refuse, in one line, a record that cannot be trained on: impossible values, too little
         temperature range, too few blocks; from the time stamps alone, before any feature work."""
-        for rec in (recording, val_rec):
-            if rec is not None:
-                check_physical(rec)
-                check_features_present(rec, self.features)
+        for rec in (r for r in (recording, val_rec) if r is not None):
+            check_physical(rec)
+            check_features_present(rec, self.features)
         time_s = recording.time_s
         if val_rec is not None:
-            n_train, n_val = len(block_means(time_s, time_s, self.block_s)), len(
-                block_means(val_rec.time_s, val_rec.time_s, self.block_s))
+            n_train, n_val = (len(block_means(t, t, self.block_s)) for t in (time_s, val_rec.time_s))
         else:
             train, val = split_by_time(time_s, self.val_fraction, self.n_blocks, self.val_fold)
             n_train = len(block_means(time_s[train], time_s[train], self.block_s))

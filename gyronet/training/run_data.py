@@ -116,3 +116,9 @@ def stack_runs(runs: Sequence[Run], block_s: float) -> RunBlocks:
     return RunBlocks(np.concatenate([b.x for b in parts]), np.concatenate([b.y for b in parts]),
                      np.concatenate([b.time_s for b in parts]),
                      np.concatenate([np.full(len(b), i, dtype=np.int64) for i, b in enumerate(parts)]))
+
+
+def minus_startup_offset(time_s: np.ndarray, residual: np.ndarray, startup_s: float) -> np.ndarray:
+    """``residual`` minus its mean over the first ``startup_s`` s: what ``startup.still_s`` leaves of it."""
+    window = time_s < time_s[0] + startup_s
+    return residual - residual[window].mean(0) if window.any() else residual

@@ -25,7 +25,7 @@ from gyronet.model.features import PAPER_FEATURES
 from gyronet.recordings.data import AXES
 from gyronet.training.capacity import MIN_IN_BOX_S, inside_box
 from gyronet.training.dataset import MIN_TRAIN_BLOCKS, DriftData, TrainingData
-from gyronet.training.run_data import Run, RunBlocks, load_runs, run_name, stack_runs
+from gyronet.training.run_data import Run, RunBlocks, load_runs, minus_startup_offset, run_name, stack_runs
 from gyronet.training.run_offsets import RunOffsets
 
 log = logging.getLogger(__name__)
@@ -103,12 +103,6 @@ class RunsData(TrainingData):
         return meta
 
 
-def minus_startup_offset(time_s: np.ndarray, residual: np.ndarray, startup_s: float) -> np.ndarray:
-    """``residual`` minus its mean over the first ``startup_s`` s: what ``startup.still_s`` leaves of it."""
-    window = time_s < time_s[0] + startup_s
-    return residual - residual[window].mean(0) if window.any() else residual
-
-
 def training_data(path: str | None = None, paths: Sequence[str] | None = None, run_offsets: bool = False,
                   val_startup_s: float = 0.0, features: list | None = None, block_s: float = 10.0,
                   val_fraction: float = 0.2, n_blocks: int = 10, val_fold: int | None = None,
@@ -117,7 +111,8 @@ def training_data(path: str | None = None, paths: Sequence[str] | None = None, r
     """``conf/data``'s target: one recording (``path``, interleaved time blocks) or several (``paths``, by run).
 
     The options after ``val_startup_s`` are ``DriftData``'s; ``val_fraction``, ``n_blocks``,
-    ``val_fold`` and ``val_path`` apply to one recording only.
+    ``val_fold`` and ``val_path`` apply to one recording only, ``val_startup_s`` to both (as
+    deployed: by run, or the starts' mixing on one recording, ``gyronet.training.starts``).
     """
     if path is not None and paths:
         raise GyronetError("give data.path=F.csv (one recording) or data.paths=[A.csv,B.csv] (several runs), not both")
@@ -129,7 +124,7 @@ def training_data(path: str | None = None, paths: Sequence[str] | None = None, r
             log.debug("data.run_offsets needs two or more runs: off for one recording")
         return DriftData(path=str(path if path is not None else paths[0]), features=features, block_s=block_s,
                          val_fraction=val_fraction, n_blocks=n_blocks, val_fold=val_fold, val_path=val_path,
-                         static_rate_dps=static_rate_dps, rate_tau_s=rate_tau_s)
+                         static_rate_dps=static_rate_dps, rate_tau_s=rate_tau_s, val_startup_s=val_startup_s)
     if val_path:
         raise GyronetError("data.val_path and data.paths: with several runs the held-out data are the runs "
                            "themselves (leave-one-run-out); drop data.val_path")
@@ -271,5 +266,5 @@ def _fold_record(run: Run, fold: RunsData, fold_model: nn.Module, metrics: dict[
             "out_of_range_fraction": float(np.mean((temp < low) | (temp > high)))}
 
 
-__all__ = ["Run", "RunBlocks", "RunOffsets", "RunsData", "fit_by_run", "load_runs", "minus_startup_offset", "run_name",
+__all__ = ["Run", "RunBlocks", "RunOffsets", "RunsData", "fit_by_run", "load_runs", "run_name",
            "training_data"]

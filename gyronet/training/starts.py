@@ -34,6 +34,7 @@ from gyronet.recordings.data import AXES
 from gyronet.training import error_bar_fit
 from gyronet.training.dataset import DriftData, residual_block_means
 from gyronet.training.refit import continue_on_every_block
+from gyronet.training.run_data import minus_startup_offset
 from gyronet.training.steps import predict, validation_metrics
 
 log = logging.getLogger(__name__)
@@ -111,9 +112,32 @@ def mix_into(model: nn.Module, parts: Sequence[nn.Module], weights: np.ndarray) 
 
 
 def held_out_residuals(model: nn.Module, data: DriftData) -> np.ndarray:
-    """The held-out 60 s block means of measured minus predicted drift, (m, axes), as ``val/rmse`` squares them."""
+    """The held-out 60 s block means of measured minus predicted drift, (m, axes): what the starts are mixed on.
+
+    With ``data.val_startup_s`` they are scored as deployed with a start-up offset over that many
+    seconds: less the model's mean residual over the first ``val_startup_s`` s of the validation
+    recording (``data.val_path``), or on time blocks of the training record itself, whose power-up
+    is the only one a recording has (in sample). The offset carries that window's error into every
+    later sample, so a start that misfits the power-up loses where it would in use.
+    """
     time_s, x, y = data.val_full
-    return residual_block_means(time_s, y - predict(model, x), 60.0)
+    residual = y - predict(model, x)
+    startup_s = getattr(data, "val_startup_s", 0.0)
+    if startup_s > 0 and data.val_path:
+        residual = minus_startup_offset(time_s, residual, startup_s)
+    elif startup_s > 0:
+        residual = residual - _startup_residual(model, data, startup_s)
+    return residual_block_means(time_s, residual, 60.0)
+
+
+def _startup_residual(model: nn.Module, data: DriftData, startup_s: float) -> np.ndarray:
+    """The model's mean residual (axes,) over the training record's first ``startup_s`` s, from its blocks (0: none there)."""
+    blocks = [b for b in (data.train, data.val) if len(b)]
+    window = np.concatenate([b.time_s for b in blocks]) < data.recording.time_s[0] + startup_s
+    if not window.any():
+        return np.zeros(len(AXES))
+    x, y = (np.concatenate([getattr(b, k) for b in blocks])[window] for k in ("x", "y"))
+    return (y - predict(model, x)).mean(0)
 
 
 def member_seeds(seed: int, members: int) -> list[int]:
@@ -195,7 +219,8 @@ def fit_every_start(model: nn.Module, data: DriftData, optim: Callable | None, o
         if None not in levels:
             final[f"model/level_{axis}"] = float(max(levels))
     if len(trials) > 1:
-        log.info("starts mixed per axis (held-out %s deg/s): weights x/y/z %s; mixture %.4g deg/s",
+        log.info("starts mixed per axis%s (held-out %s deg/s): weights x/y/z %s; mixture %.4g deg/s",
+                 f" as deployed after {data.val_startup_s:g} s" if getattr(data, "val_startup_s", 0) else "",
                  ", ".join(f"{i} {f['val/rmse_dps']:.4g}" for f, i, _, _ in trials),
                  ", ".join(f"{i} " + "/".join(f"{w:.2f}" for w in row) for (_, i, _, _), row in zip(trials, weights)),
                  final["val/rmse_dps"])
