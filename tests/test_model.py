@@ -307,9 +307,10 @@ def test_mixing_as_deployed_charges_a_start_its_error_over_the_records_power_up(
     held = (time_s >= 3000) & (time_s < 4200)
     y[held] += rng.normal(0.0, 1e-3, (held.sum(), 3))
     x = np.column_stack([time_s, np.zeros((len(time_s), 2))])
+    temp_c = np.full(len(time_s), 25.0)  # it powers up at 25 degC, inside its -40..60 degC
     data = SimpleNamespace(train=Blocks(x[~held], y[~held], time_s[~held]), val=Blocks(x[held], y[held], time_s[held]),
-                           val_full=(time_s[held], x[held], y[held]), recording=SimpleNamespace(time_s=time_s),
-                           val_path=None, val_startup_s=0.0)
+                           val_full=(time_s[held], x[held], y[held]), val_path=None, val_startup_s=0.0,
+                           recording=SimpleNamespace(time_s=time_s, temp_c=temp_c), temp_range_c=(-40.0, 60.0))
     misses, follows = _PowerUp(0.0), _PowerUp(0.01)  # alike on the held-out blocks; one misses the power-up
     as_is = held_out_residuals(misses, data)
     assert_close(held_out_residuals(follows, data), as_is, rtol=0, atol=0)
@@ -318,6 +319,9 @@ def test_mixing_as_deployed_charges_a_start_its_error_over_the_records_power_up(
     assert_close(held_out_residuals(misses, data), as_is - 0.01, rtol=0, atol=1e-15)
     deployed = [held_out_residuals(m, data) for m in (misses, follows)]
     assert stack_weights(*deployed)[:, 0].tolist() == [0.0, 1.0]
+    temp_c[:60] = 58.0  # a hot soak: its first 600 s at the edge of the range stand for no deployment
+    assert_close(held_out_residuals(misses, data), as_is, rtol=0, atol=0)
+    temp_c[:60] = 25.0
     # a validation recording of its own: its residual less its own first 600 s (a held-out power-up)
     data.val_path, data.val_full = "other.csv", (time_s, x, y)
     missed, followed = (held_out_residuals(m, data) for m in (misses, follows))
