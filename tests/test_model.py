@@ -317,6 +317,8 @@ def test_mixing_as_deployed_charges_a_start_its_error_over_the_records_power_up(
     assert stack_weights(as_is, held_out_residuals(follows, data))[:, 0].tolist() == [1.0, 0.0]  # a tie: the first
     data.val_startup_s = 600.0
     assert_close(held_out_residuals(misses, data), as_is - 0.01, rtol=0, atol=1e-15)
+    temp_c[3] = np.nan  # a glitch row in the window does not turn the rule off
+    assert_close(held_out_residuals(misses, data), as_is - 0.01, rtol=0, atol=1e-15)
     deployed = [held_out_residuals(m, data) for m in (misses, follows)]
     assert stack_weights(*deployed)[:, 0].tolist() == [0.0, 1.0]
     temp_c[:60] = 58.0  # a hot soak: its first 600 s at the edge of the range stand for no deployment
