@@ -195,6 +195,18 @@ def test_noise_parameters_on_ideal_lines():
     assert math.isnan(noise_parameters(taus_s, walk)["arw_deg_rthr"])
 
 
+def test_arw_is_read_in_the_broad_white_region_not_a_chance_window_at_long_tau():
+    """A filtered output: the -1/2 region bent a little (slope -0.48) over two decades, then a hump, then
+    0.7 decade at exactly -1/2 five times higher (a drift residual). N is the white region's."""
+    log_tau = np.linspace(-1.0, 4.0, 201)
+    slopes = np.select([log_tau < 0, log_tau < 2, log_tau < 2.5, log_tau < 3.2], [0.3, -0.48, 0.8, -0.5], -0.1)
+    log_dev = np.concatenate([[0.0], np.cumsum(slopes[1:] * np.diff(log_tau))])
+    log_dev += math.log10(0.3 / 60.0) - np.interp(0.0, log_tau, log_dev)  # the white line: N = 0.3 at 1 s
+    terms = noise_parameters(10.0 ** log_tau, 10.0 ** log_dev)
+    assert terms["arw_deg_rthr"] == pytest.approx(0.3, rel=0.1)
+    assert terms["arw_slope"] == pytest.approx(-0.48, abs=0.01)
+
+
 # --- the report, gaps, JSON and the plot -------------------------------------------------------
 
 def _three_axis_record(n=20_000, fs_hz=50.0, seed=20):

@@ -11,6 +11,7 @@ BIAS_INSTABILITY_FACTOR = 0.664
 # estimate's error, 1 / sqrt(2 (clusters - 1)) (IEEE Std 952 annex C), is over 24 %.
 MIN_CLUSTERS = 10.0
 _SLOPE_TOLERANCE = 0.25
+_RUN_TOLERANCE = 0.1  # a region of the slope: windows this close to it, side by side
 _WINDOW_DECADES = 0.5
 
 
@@ -40,9 +41,10 @@ def noise_parameters(taus_s: np.ndarray, adev: np.ndarray, max_tau_s: float | No
     -----
     The log-log slope at each tau is the least-squares slope over the taus within half a decade
     around it (a single pair of neighbours is too noisy at long tau). N comes from the window left
-    of the minimum whose slope is closest to -1/2, K from the window right of it closest to +1/2;
-    the fixed-slope line is fitted to that window and read at 1 s (N) or 3 s (K), as in IEEE Std
-    952 annex C and MATLAB's "Inertial Sensor Noise Analysis Using Allan Variance" example. When
+    of the minimum whose slope is closest to -1/2, K from the window right of it closest to +1/2,
+    each within the widest run of windows whose slopes are within 0.1 of it (a noise term holds
+    its slope over a decade or more); the fixed-slope line is fitted to that window and read at
+    1 s (N) or 3 s (K), as in IEEE Std 952 annex C and MATLAB's "Inertial Sensor Noise Analysis Using Allan Variance" example. When
     the best slope is more than 0.25 away from the target (e.g. a curve still falling at its end
     has no +1/2 region), the term is NaN instead of a number read off the wrong noise.
     B is ``min(adev) / 0.664``, the minimum taken over the usable taus.
@@ -82,18 +84,31 @@ def noise_parameters(taus_s: np.ndarray, adev: np.ndarray, max_tau_s: float | No
 
 def _fixed_slope_fit(log_tau: np.ndarray, log_dev: np.ndarray, centres: slice, slope: float,
                      read_at_s: float) -> tuple[float, float] | None:
-    """Fit a line of the given slope where the local slope is closest to it; its value at a tau."""
-    best: tuple[float, np.ndarray] | None = None
+    """Fit a line of the given slope in the curve's broadest region of that slope; its value at a tau.
+
+    A noise term shows as a slope held over a decade or more. A single window at long tau can
+    match the slope more closely by chance (a filtered rate's drift residual near 1,000 s), so the
+    window is the best-matching one of the widest run of windows within ``_RUN_TOLERANCE`` of it.
+    """
+    locals_, windows = [], []
     for centre in range(*centres.indices(len(log_tau))):
         window = np.abs(log_tau - log_tau[centre]) <= _WINDOW_DECADES / 2
         if window.sum() < 2:
             continue
-        local = float(np.polyfit(log_tau[window], log_dev[window], 1)[0])
-        if best is None or abs(local - slope) < abs(best[0] - slope):
-            best = (local, window)
-    if best is None or abs(best[0] - slope) > _SLOPE_TOLERANCE:
+        locals_.append(float(np.polyfit(log_tau[window], log_dev[window], 1)[0]))
+        windows.append((centre, window))
+    if not locals_:
         return None
-    local, window = best
+    miss = np.abs(np.asarray(locals_) - slope)
+    candidates = np.arange(len(miss))
+    runs = np.split(candidates, np.flatnonzero(np.diff((miss <= _RUN_TOLERANCE).astype(int))) + 1)
+    runs = [run for run in runs if miss[run[0]] <= _RUN_TOLERANCE]
+    if runs:  # the widest run in decades of tau
+        candidates = max(runs, key=lambda run: log_tau[windows[run[-1]][0]] - log_tau[windows[run[0]][0]])
+    best = int(candidates[np.argmin(miss[candidates])])
+    if miss[best] > _SLOPE_TOLERANCE:
+        return None
+    local, window = locals_[best], windows[best][1]
     # log sigma = slope * log tau + b, b fitted in least squares over the window.
     intercept = float(np.mean(log_dev[window] - slope * log_tau[window]))
     return 10.0 ** (intercept + slope * math.log10(read_at_s)), local
