@@ -44,9 +44,10 @@ def noise_parameters(taus_s: np.ndarray, adev: np.ndarray, max_tau_s: float | No
     of the minimum whose slope is closest to -1/2, K from the window right of it closest to +1/2,
     each within the widest run of windows whose slopes are within 0.1 of it (a noise term holds
     its slope over a decade or more); the fixed-slope line is fitted to that window and read at
-    1 s (N) or 3 s (K), as in IEEE Std 952 annex C and MATLAB's "Inertial Sensor Noise Analysis Using Allan Variance" example. When
-    the best slope is more than 0.25 away from the target (e.g. a curve still falling at its end
-    has no +1/2 region), the term is NaN instead of a number read off the wrong noise.
+    1 s (N) or 3 s (K), as in IEEE Std 952 annex C and MATLAB's "Inertial Sensor Noise Analysis
+    Using Allan Variance" example. When the best slope is more than 0.25 away from the target (e.g.
+    a curve still falling at its end has no +1/2 region), the term is NaN instead of a number read
+    off the wrong noise.
     B is ``min(adev) / 0.664``, the minimum taken over the usable taus.
 
     References
