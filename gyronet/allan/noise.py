@@ -91,25 +91,23 @@ def _fixed_slope_fit(log_tau: np.ndarray, log_dev: np.ndarray, centres: slice, s
     match the slope more closely by chance (a filtered rate's drift residual near 1,000 s), so the
     window is the best-matching one of the widest run of windows within ``_RUN_TOLERANCE`` of it.
     """
-    locals_, windows = [], []
+    kept, slopes = [], []  # window centres and their local slopes
     for centre in range(*centres.indices(len(log_tau))):
         window = np.abs(log_tau - log_tau[centre]) <= _WINDOW_DECADES / 2
-        if window.sum() < 2:
-            continue
-        locals_.append(float(np.polyfit(log_tau[window], log_dev[window], 1)[0]))
-        windows.append((centre, window))
-    if not locals_:
+        if window.sum() >= 2:
+            kept.append(centre)
+            slopes.append(float(np.polyfit(log_tau[window], log_dev[window], 1)[0]))
+    if not kept:
         return None
-    miss = np.abs(np.asarray(locals_) - slope)
-    candidates = np.arange(len(miss))
-    runs = np.split(candidates, np.flatnonzero(np.diff((miss <= _RUN_TOLERANCE).astype(int))) + 1)
-    runs = [run for run in runs if miss[run[0]] <= _RUN_TOLERANCE]
-    if runs:  # the widest run in decades of tau
-        candidates = max(runs, key=lambda run: log_tau[windows[run[-1]][0]] - log_tau[windows[run[0]][0]])
-    best = int(candidates[np.argmin(miss[candidates])])
+    miss = np.abs(np.asarray(slopes) - slope)
+    near = miss <= _RUN_TOLERANCE
+    edges = np.flatnonzero(np.diff(near.astype(int))) + 1
+    runs = [run for run in np.split(np.arange(len(kept)), edges) if near[run[0]]]  # side by side, near the slope
+    pool = max(runs, key=lambda run: log_tau[kept[run[-1]]] - log_tau[kept[run[0]]]) if runs else np.arange(len(kept))
+    best = int(pool[np.argmin(miss[pool])])
     if miss[best] > _SLOPE_TOLERANCE:
         return None
-    local, window = locals_[best], windows[best][1]
+    window = np.abs(log_tau - log_tau[kept[best]]) <= _WINDOW_DECADES / 2
     # log sigma = slope * log tau + b, b fitted in least squares over the window.
     intercept = float(np.mean(log_dev[window] - slope * log_tau[window]))
-    return 10.0 ** (intercept + slope * math.log10(read_at_s)), local
+    return 10.0 ** (intercept + slope * math.log10(read_at_s)), slopes[best]
