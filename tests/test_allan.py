@@ -189,6 +189,7 @@ def test_noise_parameters_on_ideal_lines():
     assert terms["arw_deg_rthr"] == pytest.approx(0.3, rel=1e-9)
     assert terms["bias_instability_deg_hr"] == pytest.approx(5.0, rel=1e-9)
     assert terms["rrw_deg_hr_rthr"] == pytest.approx(40.0, rel=1e-9)
+    assert terms["arw_tau_s"] < terms["bias_instability_tau_s"] < terms["rrw_tau_s"]
     only_white = noise_parameters(taus_s, white)
     assert math.isnan(only_white["rrw_deg_hr_rthr"])
     assert only_white["bias_instability_tau_s"] == pytest.approx(taus_s[-1])
@@ -205,6 +206,7 @@ def test_arw_is_read_in_the_broad_white_region_not_a_chance_window_at_long_tau()
     terms = noise_parameters(10.0 ** log_tau, 10.0 ** log_dev)
     assert terms["arw_deg_rthr"] == pytest.approx(0.3, rel=0.1)
     assert terms["arw_slope"] == pytest.approx(-0.48, abs=0.01)
+    assert 1.0 < terms["arw_tau_s"] < 100.0  # read in the white region, and says where
 
 
 # --- the report, gaps, JSON and the plot -------------------------------------------------------

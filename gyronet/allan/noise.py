@@ -34,7 +34,8 @@ def noise_parameters(taus_s: np.ndarray, adev: np.ndarray, max_tau_s: float | No
     dict
         ``arw_deg_rthr`` (N, deg/sqrt(h)), ``bias_instability_deg_hr`` (B, deg/h),
         ``bias_instability_tau_s``, ``rrw_deg_hr_rthr`` (K, deg/h/sqrt(h)), and the local slopes
-        the fits used, ``arw_slope`` and ``rrw_slope``. A term is NaN when the curve has no
+        the fits used, ``arw_slope`` and ``rrw_slope``, at the taus they were read at (the
+        window's centre), ``arw_tau_s`` and ``rrw_tau_s``. A term is NaN when the curve has no
         region for it.
 
     Notes
@@ -65,7 +66,7 @@ def noise_parameters(taus_s: np.ndarray, adev: np.ndarray, max_tau_s: float | No
     taus, dev = taus[usable], dev[usable]
     result = dict(arw_deg_rthr=math.nan, bias_instability_deg_hr=math.nan,
                   bias_instability_tau_s=math.nan, rrw_deg_hr_rthr=math.nan,
-                  arw_slope=math.nan, rrw_slope=math.nan)
+                  arw_slope=math.nan, rrw_slope=math.nan, arw_tau_s=math.nan, rrw_tau_s=math.nan)
     if len(taus) < 2:
         return result
     lowest = int(np.argmin(dev))
@@ -75,17 +76,17 @@ def noise_parameters(taus_s: np.ndarray, adev: np.ndarray, max_tau_s: float | No
     # sigma = N / sqrt(tau): N is the line's value at tau = 1 s, deg/sqrt(s) -> deg/sqrt(h).
     arw = _fixed_slope_fit(log_tau, log_dev, slice(0, lowest + 1), -0.5, 1.0)
     if arw is not None:
-        result["arw_deg_rthr"], result["arw_slope"] = arw[0] * 60.0, arw[1]
+        result["arw_deg_rthr"], result["arw_slope"], result["arw_tau_s"] = arw[0] * 60.0, arw[1], arw[2]
     # sigma = K sqrt(tau / 3): K is the line's value at tau = 3 s, deg/s/sqrt(s) -> deg/h/sqrt(h).
     rrw = _fixed_slope_fit(log_tau, log_dev, slice(lowest, len(taus)), 0.5, 3.0)
     if rrw is not None:
-        result["rrw_deg_hr_rthr"], result["rrw_slope"] = rrw[0] * 3600.0 * 60.0, rrw[1]
+        result["rrw_deg_hr_rthr"], result["rrw_slope"], result["rrw_tau_s"] = rrw[0] * 3600.0 * 60.0, rrw[1], rrw[2]
     return result
 
 
 def _fixed_slope_fit(log_tau: np.ndarray, log_dev: np.ndarray, centres: slice, slope: float,
-                     read_at_s: float) -> tuple[float, float] | None:
-    """Fit a line of the given slope in the curve's broadest region of that slope; its value at a tau.
+                     read_at_s: float) -> tuple[float, float, float] | None:
+    """A line of the given slope fitted in the widest region of it: its value at a tau, the local slope, where.
 
     A noise term shows as a slope held over a decade or more. A single window at long tau can
     match the slope more closely by chance (a filtered rate's drift residual near 1,000 s), so the
@@ -110,4 +111,4 @@ def _fixed_slope_fit(log_tau: np.ndarray, log_dev: np.ndarray, centres: slice, s
     window = np.abs(log_tau - log_tau[kept[best]]) <= _WINDOW_DECADES / 2
     # log sigma = slope * log tau + b, b fitted in least squares over the window.
     intercept = float(np.mean(log_dev[window] - slope * log_tau[window]))
-    return 10.0 ** (intercept + slope * math.log10(read_at_s)), slopes[best]
+    return 10.0 ** (intercept + slope * math.log10(read_at_s)), slopes[best], float(10.0 ** log_tau[kept[best]])

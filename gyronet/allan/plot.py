@@ -69,8 +69,10 @@ def _plot_curve(panel, curve: Mapping, color: str, label: str | None) -> tuple[f
     terms = f"N={num(arw)} deg/rt(h), B={num(bias)} deg/h, K={num(rrw)} deg/h/rt(h)"
     panel.loglog(taus, dev, color=color, lw=1.6, label=f"{label}: {terms}" if label else terms)
     # sigma = N / sqrt(tau), sigma = 0.664 B, sigma = K sqrt(tau / 3), all back in deg/s.
-    if math.isfinite(arw):
+    if math.isfinite(arw):  # the line, and a mark where it was fitted
         panel.loglog(taus, arw / 60.0 / np.sqrt(taus), color=color, ls="--", lw=0.8)
+        read_s = _finite(curve.get("arw_tau_s"))
+        panel.plot([read_s], [arw / 60.0 / math.sqrt(read_s)], marker="s", color=color, ms=4)
     if math.isfinite(bias):
         flat_dps = bias / 3600.0 * BIAS_INSTABILITY_FACTOR
         panel.axhline(flat_dps, color=color, ls=":", lw=0.8)
