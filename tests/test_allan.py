@@ -272,6 +272,19 @@ def test_plot_allan_single_and_labelled(tmp_path):
     assert legend[0].startswith("raw: N=") and legend[1].startswith("compensated: N=")
 
 
+def test_plot_marks_where_n_and_k_were_read():
+    """A square on the -1/2 line at ``arw_tau_s``, a triangle on the +1/2 line at ``rrw_tau_s``."""
+    taus_s = np.logspace(-2, 5, 141)
+    white, walk = 0.3 / 60.0 / np.sqrt(taus_s), 40.0 / 216000.0 * np.sqrt(taus_s / 3.0)
+    dev = np.maximum(np.maximum(white, walk), 0.664 * 5.0 / 3600.0)
+    terms = noise_parameters(taus_s, dev)
+    fig = plot_allan({"x": {"taus_s": taus_s.tolist(), "adev_dps": dev.tolist(), **terms}})
+    marks = {line.get_marker(): (line.get_xdata()[0], line.get_ydata()[0]) for line in fig.axes[0].get_lines()
+             if line.get_marker() in ("s", "^")}
+    assert marks["s"] == pytest.approx((terms["arw_tau_s"], np.interp(terms["arw_tau_s"], taus_s, dev)), rel=1e-6)
+    assert marks["^"] == pytest.approx((terms["rrw_tau_s"], np.interp(terms["rrw_tau_s"], taus_s, dev)), rel=1e-6)
+
+
 # --- real data -------------------------------------------------------------------------------
 
 @pytest.mark.skipif(not ADIS_DIR.is_dir(), reason="shared ADIS16405 data not present")

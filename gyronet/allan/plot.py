@@ -11,7 +11,7 @@ from gyronet.allan.report import AXES, axes_of, num
 
 
 def plot_allan(report_or_curves: Mapping, path=None, title: str = "Allan deviation"):
-    """Log-log Allan curves per axis with the fitted -1/2, 0 and +1/2 lines; N, B, K in the legend.
+    """Log-log Allan curves per axis, the fitted -1/2, 0 and +1/2 lines marked where read; N, B, K in the legend.
 
     Parameters
     ----------
@@ -77,8 +77,10 @@ def _plot_curve(panel, curve: Mapping, color: str, label: str | None) -> tuple[f
         flat_dps = bias / 3600.0 * BIAS_INSTABILITY_FACTOR
         panel.axhline(flat_dps, color=color, ls=":", lw=0.8)
         panel.plot([_finite(curve.get("bias_instability_tau_s"))], [flat_dps], marker="o", color=color, ms=4)
-    if math.isfinite(rrw):
+    if math.isfinite(rrw):  # the line, and a mark where it was fitted
         panel.loglog(taus, rrw / 216000.0 * np.sqrt(taus / 3.0), color=color, ls="-.", lw=0.8)
+        read_s = _finite(curve.get("rrw_tau_s"))
+        panel.plot([read_s], [rrw / 216000.0 * math.sqrt(read_s / 3.0)], marker="^", color=color, ms=4)
     positive = dev[np.isfinite(dev) & (dev > 0)]
     return (float(positive.min()), float(positive.max())) if len(positive) else None
 
