@@ -69,20 +69,24 @@ def _plot_curve(panel, curve: Mapping, color: str, label: str | None) -> tuple[f
     terms = f"N={num(arw)} deg/rt(h), B={num(bias)} deg/h, K={num(rrw)} deg/h/rt(h)"
     panel.loglog(taus, dev, color=color, lw=1.6, label=f"{label}: {terms}" if label else terms)
     # sigma = N / sqrt(tau), sigma = 0.664 B, sigma = K sqrt(tau / 3), all back in deg/s.
-    if math.isfinite(arw):  # the line, and a mark where it was fitted
-        panel.loglog(taus, arw / 60.0 / np.sqrt(taus), color=color, ls="--", lw=0.8)
-        read_s = _finite(curve.get("arw_tau_s"))
-        panel.plot([read_s], [arw / 60.0 / math.sqrt(read_s)], marker="s", color=color, ms=4)
+    if math.isfinite(arw):
+        _line_and_mark(panel, taus, lambda t: arw / 60.0 / np.sqrt(t), curve.get("arw_tau_s"), color, "--", "s")
     if math.isfinite(bias):
         flat_dps = bias / 3600.0 * BIAS_INSTABILITY_FACTOR
         panel.axhline(flat_dps, color=color, ls=":", lw=0.8)
         panel.plot([_finite(curve.get("bias_instability_tau_s"))], [flat_dps], marker="o", color=color, ms=4)
-    if math.isfinite(rrw):  # the line, and a mark where it was fitted
-        panel.loglog(taus, rrw / 216000.0 * np.sqrt(taus / 3.0), color=color, ls="-.", lw=0.8)
-        read_s = _finite(curve.get("rrw_tau_s"))
-        panel.plot([read_s], [rrw / 216000.0 * math.sqrt(read_s / 3.0)], marker="^", color=color, ms=4)
+    if math.isfinite(rrw):
+        _line_and_mark(panel, taus, lambda t: rrw / 216000.0 * np.sqrt(t / 3.0), curve.get("rrw_tau_s"), color,
+                       "-.", "^")
     positive = dev[np.isfinite(dev) & (dev > 0)]
     return (float(positive.min()), float(positive.max())) if len(positive) else None
+
+
+def _line_and_mark(panel, taus: np.ndarray, line, read_s, color: str, style: str, marker: str) -> None:
+    """A fitted noise line (``line(tau)``, deg/s) over the taus, and a mark on it where it was read."""
+    panel.loglog(taus, line(taus), color=color, ls=style, lw=0.8)
+    read_s = _finite(read_s)
+    panel.plot([read_s], [float(line(read_s))], marker=marker, color=color, ms=4)
 
 
 def _finite(value) -> float:
