@@ -13,6 +13,7 @@ from omegaconf import DictConfig, OmegaConf
 
 from gyronet.errors import GyronetError
 from gyronet.sim.survey_sensor import check_distribution
+from gyronet.analysis.survey.bound import BOUND
 from gyronet.analysis.survey import TRAIN_PATH, History, SurveySpec, summarize, survey, to_markdown, write_outputs
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # scripts/_cli.py, also when this file is run by path
@@ -32,7 +33,8 @@ def _method(model: str, overrides: list) -> dict:
 
 
 @command("survey", schemas={"n_sensors": int, "first_seed": int, "jobs": int, "fs_hz": float, "startup_s": float,
-                            "reuse": bool, "keep_records": bool, "train_overrides": list, "more_train_histories": list,
+                            "reuse": bool, "keep_records": bool, "bound": bool, "train_overrides": list,
+                            "more_train_histories": list,
                             "train_history": "gyronet.analysis.survey.History", "check_history": "gyronet.analysis.survey.History",
                             "goals": "gyronet.analysis.survey.table.goal_keys"})
 def main(cfg: DictConfig) -> None:
@@ -41,15 +43,19 @@ def main(cfg: DictConfig) -> None:
     if cfg.jobs < 1:
         raise GyronetError(f"jobs must be a whole number >= 1, got {cfg.jobs}")
     check_distribution(cfg.distribution)
-    methods = {str(name): _method(str(model), list(cfg.train_overrides)) for name, model in cfg.methods.items()}
+    chosen = cfg.methods or {}  # methods=null: form-bound alone
+    methods = {str(name): _method(str(model), list(cfg.train_overrides)) for name, model in chosen.items()}
+    scored = [*methods, *([BOUND] if cfg.bound else [])]
+    if not scored:
+        raise GyronetError("nothing to score: no methods and bound=false")
     for key in ("ours", "reference"):
-        if cfg[key] not in methods and not (key == "reference" and cfg[key] is None):
-            raise GyronetError(f"{key}={cfg[key]} is not one of the methods ({', '.join(methods)})")
+        if cfg[key] not in scored and not (key == "reference" and cfg[key] is None):
+            raise GyronetError(f"{key}={cfg[key]} is not one of the methods ({', '.join(scored)})")
     histories = {k: History(**OmegaConf.to_container(cfg[k], resolve=True)) for k in ("train_history", "check_history")}
     more = tuple(_history(item) for item in cfg.more_train_histories)
     spec = SurveySpec(methods=methods, distribution=cfg.distribution, fs_hz=cfg.fs_hz, startup_s=cfg.startup_s,
                       simulate=OmegaConf.to_container(cfg.simulate, resolve=True), keep_records=cfg.keep_records,
-                      more_train_histories=more, **histories)
+                      bound=cfg.bound, more_train_histories=more, **histories)
     out_dir = Path(HydraConfig.get().runtime.output_dir)
     seeds = range(cfg.first_seed, cfg.first_seed + cfg.n_sensors)
     results = survey(seeds, spec, out_dir, jobs=cfg.jobs, reuse=cfg.reuse, progress=cfg.progress)
@@ -57,7 +63,7 @@ def main(cfg: DictConfig) -> None:
     settings = {"distribution": cfg.distribution, "startup_s": cfg.startup_s, "fs_hz": cfg.fs_hz,
                 "train": " + ".join(_history_text(h) for h in (histories["train_history"], *more)),
                 "check": _history_text(histories["check_history"]),
-                "methods": OmegaConf.to_container(cfg.methods), "train_overrides": list(cfg.train_overrides),
+                "methods": dict(chosen), "train_overrides": list(cfg.train_overrides),
                 "first_seed": cfg.first_seed}
     output = write_outputs(results, summary, settings, cfg.output)
     log.info("survey table %s (and .json, _sensors.csv), %.0f s a sensor (median):\n%s", output,

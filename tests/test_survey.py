@@ -189,7 +189,8 @@ def test_the_survey_command_writes_its_table_and_resumes(tmp_path, monkeypatch, 
     table = (out / "survey.md").read_text()
     rows = [line for line in table.splitlines() if line.startswith("| ") and "---" not in line]
     assert rows[0] == "| method | scored | median | 90th percentile | worst (sensor) |"
-    assert [r.split(" | ")[0].strip("| ") for r in rows[1:]] == ["gyronet"] * 3 + ["PX4-cubic"] * 3 + ["PX4-script"] * 3
+    names = ["gyronet"] * 3 + ["PX4-cubic"] * 3 + ["PX4-script"] * 3 + ["form-bound"] * 3  # bound: true by default
+    assert [r.split(" | ")[0].strip("| ") for r in rows[1:]] == names
     for row in rows[1:]:
         assert re.search(r"\| \d+\.\d\d \| \d+\.\d\d \| \d+\.\d\d \([01]\) \|$", row), row
     assert "gyronet / PX4-cubic, worst axis, as deployed: worst sensor" in table
@@ -208,6 +209,8 @@ def test_the_survey_command_writes_its_table_and_resumes(tmp_path, monkeypatch, 
         assert all(0.0 <= w <= 1.0 for w in bar["within_1_sigma"]) and min(bar["worst_hour_rms_ratio"]) > 0
         # few steps and a tiny record, but trained on its own history the network still beats the cubic
         assert max(s["methods"]["gyronet"]["deployed"]) < max(s["methods"]["PX4-cubic"]["deployed"])
+        # the simulator's own formula, its coefficients fitted: better than both
+        assert max(s["methods"]["form-bound"]["deployed"]) < max(s["methods"]["gyronet"]["deployed"])
     lines = (out / "survey_sensors.csv").read_text().splitlines()
     assert len(lines) == 3 and lines[0].startswith("sensor_seed,sharpest_knee_c,max_rate_gain_deg_per_c,max_axis_lag_s,")
     assert lines[0].split(",").index("gyronet:deployed:worst") == 7
@@ -254,6 +257,17 @@ def test_more_training_histories_train_every_method_as_a_campaign(tmp_path, monk
     assert settings["train"].count("profile=cycle") == 2
 
 
+def test_the_bound_alone_needs_no_training(tmp_path, monkeypatch):
+    """methods=null: form-bound on the same records, in seconds a sensor (README: what one cycle holds)."""
+    out = tmp_path / "bound"
+    assert run_survey(monkeypatch, *TINY, "methods=null", "ours=form-bound", "reference=null",
+                      f"hydra.run.dir={out}") == 0
+    sensors = json.loads((out / "survey.json").read_text())["sensors"]
+    assert [list(s["methods"]) for s in sensors] == [["form-bound"]] * 2
+    assert not list(out.glob("sensors/*/*/compensator")), "nothing trained"
+    assert "Goals for form-bound, as deployed" in (out / "survey.md").read_text()
+
+
 def test_a_sensor_another_process_is_running_is_refused_in_one_line(tmp_path):
     """A stopped survey's workers finished their sensors while a second survey in the same folder ran them too."""
     fcntl = pytest.importorskip("fcntl")
@@ -276,6 +290,7 @@ def test_a_sensor_another_process_is_running_is_refused_in_one_line(tmp_path):
     (["+methods.mine=nope"], "methods: no conf/model/nope.yaml"),
     (["reference=PX4"], "reference=PX4 is not one of the methods"),
     (["distribution=wide"], "unknown sensor distribution 'wide'"),
+    (["methods=null", "bound=false"], "nothing to score: no methods and bound=false"),
 ])
 def test_bad_options_are_one_line(tmp_path, monkeypatch, capsys, args, expected):
     n = [] if args[0].startswith("n_sensors") else ["n_sensors=1"]

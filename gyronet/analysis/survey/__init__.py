@@ -1,6 +1,7 @@
 """The survey: many simulated sensors from a wide distribution, each trained on one history and scored on another.
 
-One sensor is :func:`run_sensor` (:mod:`.sensor_run`, scored by :mod:`.scoring`); :func:`survey` runs many in parallel
+One sensor is :func:`run_sensor` (:mod:`.sensor_run`, scored by :mod:`.scoring`, beside :mod:`.bound`'s fit of the
+simulator's own formula); :func:`survey` runs many in parallel
 (joblib, one process a job), resuming the sensors already finished; :mod:`.table` makes the
 README's table (median, 90th percentile and worst of each sensor's worst axis).
 """
@@ -58,8 +59,8 @@ def survey(seeds: Sequence[int], spec: SurveySpec, out_dir: str | Path, jobs: in
         raise GyronetError("the survey lists a sensor seed twice")
     if int(jobs) < 1:
         raise GyronetError(f"jobs must be a whole number >= 1, got {jobs}")
-    if not spec.methods:
-        raise GyronetError("the survey needs at least one method")
+    if not spec.methods and not spec.bound:
+        raise GyronetError("the survey needs at least one method (or bound)")
     tasks = (delayed(_run_or_fail)(seed, spec, sensor_folder(out_dir, seed), reuse) for seed in seeds)
     results: dict[int, dict[str, Any]] = {}
     bar = tqdm(total=len(seeds), desc="survey", unit="sensor", disable=None if progress is None else not progress)

@@ -53,29 +53,41 @@ def deployed_floor_truth(truth: Mapping[str, np.ndarray], keep: np.ndarray) -> d
 def score_bundle(bundle: Path, recording: Recording, truth: Mapping[str, np.ndarray], startup_s: float,
                  turn_on_difference_dps: np.ndarray) -> dict[str, Any]:
     """Residual / floor per axis of one bundle on the held-out record and its truth's columns, each of :data:`VARIANTS`."""
+    keep = kept_rows(recording, startup_s)
+    kept_truth = {k: v[keep] for k, v in truth.items()}
+    compensator = Compensator.load(bundle)
+    compensator.use_startup(still_s=startup_s, static_rate_dps=static_rate_dps(recording).tolist())
+    deployed = compensate_as_deployed(compensator, recording)
+    compensator.use_startup(0.0)
+    plain = compensate_as_deployed(compensator, recording)
+    scores = score_rates(recording, truth, keep, deployed.rate_dps, plain.rate_dps, turn_on_difference_dps)
+    scores["n_out_of_range"] = int(plain.out_of_range[keep].sum())
+    sigma = deployed.drift_sigma_dps[keep]
+    if np.isfinite(sigma).all():  # the bar as deployed: blocks within 1 sigma, and allan.py's recalibration check
+        score = score_against_truth(recording.time_s[keep], deployed.rate_dps[keep], sigma,
+                                    deployed.out_of_range[keep], kept_truth)
+        scores["error_bar"] = {"within_1_sigma": [score["within_1_sigma"][a] for a in AXES],
+                               "worst_hour_rms_ratio": [score["recalibration"][a]["worst_hour_rms_ratio"] for a in AXES]}
+    return scores
+
+
+def kept_rows(recording: Recording, startup_s: float) -> np.ndarray:
+    """The rows scored: from the end of the start-up window on (a one-line error if none are left)."""
     keep = recording.time_s >= recording.time_s[0] + startup_s
     if keep.sum() < 2:
         raise GyronetError(f"{recording.path}: nothing left to score after startup_s={startup_s:g} s")
+    return keep
+
+
+def score_rates(recording: Recording, truth: Mapping[str, np.ndarray], keep: np.ndarray, deployed_dps: np.ndarray,
+                plain_dps: np.ndarray, turn_on_difference_dps: np.ndarray) -> dict[str, list[float]]:
+    """Residual / floor per axis of each of :data:`VARIANTS`, from the rates compensated with and without the
+    start-up offset (shape (n, 3)), on the ``keep`` rows."""
+    rates = {"deployed": deployed_dps, "as_is": plain_dps, "turn_on_removed": plain_dps - turn_on_difference_dps}
     kept_truth = {k: v[keep] for k, v in truth.items()}
-    compensator = Compensator.load(bundle)
-    rates = {}
-    compensator.use_startup(still_s=startup_s, static_rate_dps=static_rate_dps(recording).tolist())
-    deployed = compensate_as_deployed(compensator, recording)
-    rates["deployed"] = deployed.rate_dps
-    compensator.use_startup(0.0)
-    plain = compensate_as_deployed(compensator, recording)
-    rates["as_is"] = plain.rate_dps
-    rates["turn_on_removed"] = plain.rate_dps - turn_on_difference_dps
-    scores: dict[str, Any] = {}
+    scores = {}
     for variant in VARIANTS:
         floor_truth = deployed_floor_truth(truth, keep) if variant == "deployed" else kept_truth
         report = residual_report(recording.time_s[keep], rates[variant][keep], floor_truth)
         scores[variant] = [report["ratio_to_floor"][a] for a in AXES]
-    scores["n_out_of_range"] = int(plain.out_of_range[keep].sum())
-    sigma = deployed.drift_sigma_dps[keep]
-    if np.isfinite(sigma).all():  # the bar as deployed: blocks within 1 sigma, and allan.py's recalibration check
-        score = score_against_truth(recording.time_s[keep], rates["deployed"][keep], sigma,
-                                    deployed.out_of_range[keep], kept_truth)
-        scores["error_bar"] = {"within_1_sigma": [score["within_1_sigma"][a] for a in AXES],
-                               "worst_hour_rms_ratio": [score["recalibration"][a]["worst_hour_rms_ratio"] for a in AXES]}
     return scores

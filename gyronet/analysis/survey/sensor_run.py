@@ -18,6 +18,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
+from gyronet.analysis.survey.bound import BOUND, score_form_bound
 from gyronet.analysis.survey.scoring import score_bundle, turn_on_bias
 from gyronet.atomic import atomic_output
 from gyronet.recordings.data import load_recording, load_truth
@@ -69,6 +70,9 @@ class SurveySpec:
         More :func:`gyronet.sim.simulate` arguments for both records (noise, temperature, ...).
     keep_records
         Keep the CSVs after the sensor is scored (10 Hz records are tens of MB each).
+    bound
+        Also score ``form-bound`` (:mod:`.bound`): least squares in the simulator's own drift formula, what the
+        records' noise leaves to a model of the right form.
     """
 
     methods: Mapping[str, Mapping[str, Any]]
@@ -80,12 +84,14 @@ class SurveySpec:
     startup_s: float = 600.0
     simulate: Mapping[str, Any] = field(default_factory=dict)
     keep_records: bool = False
+    bound: bool = False
 
     def fingerprint(self) -> str:
         """A hash of everything that decides a sensor's result (``keep_records`` aside): resumed only if equal."""
         settings = {k: v for k, v in dataclasses.asdict(self).items() if k != "keep_records"}
-        if not settings["more_train_histories"]:  # results from before campaigns still resume
-            del settings["more_train_histories"]
+        for key in ("more_train_histories", "bound"):  # results from before these settings still resume
+            if not settings[key]:
+                del settings[key]
         for key in ("train_history", "check_history"):  # results from before the per-record setting still resume
             if not settings[key]["simulate"]:
                 del settings[key]["simulate"]
@@ -221,6 +227,9 @@ def _simulate_train_score(sensor_seed: int, spec: SurveySpec, folder: Path, fing
             bundle = train_method(train_csvs, method, folder / _folder_name(name))
             methods[name] = {**score_bundle(bundle, check, check_truth.columns, spec.startup_s, difference),
                              "seconds": time.perf_counter() - method_start}
+        if spec.bound:
+            train = [(load_recording(path), load_truth(path).columns) for path in train_csvs]
+            methods[BOUND] = score_form_bound(train, check, check_truth.columns, sensor, spec.startup_s, difference)
     finally:
         _forget_records()
     if not spec.keep_records:
