@@ -115,15 +115,18 @@ def simulate_history(folder: Path, name: str, sensor_seed: int, history: History
 
     options = merged(spec.simulate, history.simulate)
     sensor = {"distribution": spec.distribution, **dict(options.pop("sensor", {}) or {})}
-    # one chamber history for every sensor, but each sensor its own noise: else the start-up offset's
-    # noise, a constant over the run, would be one draw shared by the whole survey
-    noise_seed = int(np.random.SeedSequence([history.seed, sensor_seed]).generate_state(1)[0])
     sim = simulate(profile=history.profile, seed=history.seed, sensor_seed=sensor_seed, fs_hz=spec.fs_hz,
                    duration_s=history.duration_s, profile_options=dict(history.profile_options), sensor=sensor,
-                   noise_seed=noise_seed, **options)
+                   noise_seed=noise_seed_of(history, sensor_seed), **options)
     path = folder / f"{name}.csv"
     write_simulation(sim, path)
     return path
+
+
+def noise_seed_of(history: History, sensor_seed: int) -> int:
+    """One chamber history for every sensor, but each sensor its own noise: else the start-up offset's noise, a
+    constant over the run, would be one draw shared by the whole survey."""
+    return int(np.random.SeedSequence([history.seed, sensor_seed]).generate_state(1)[0])
 
 
 def merged(base: Mapping[str, Any], extra: Mapping[str, Any]) -> dict[str, Any]:
