@@ -38,3 +38,14 @@ def test_scored_with_noise_it_is_near_the_floor_and_each_run_keeps_its_constant(
     scores = score_form_bound(runs, check, check_truth, sensor, 600.0, turn_on_bias(check_truth) - trained_bias)
     assert max(scores["turn_on_removed"]) == pytest.approx(1.0, abs=0.1)
     assert max(scores["deployed"]) < 1.3 and min(scores["as_is"]) > max(scores["turn_on_removed"])
+
+
+def test_a_record_with_lost_rows_is_refused_in_one_line():
+    """The axis lags are filtered sample by sample: over a gap they would be wrong, and the bound with them."""
+    from gyronet.errors import GyronetError
+    from gyronet.analysis.survey.bound import form_columns
+
+    _, truth, sensor = record("random", 2)
+    gapped = {k: np.delete(v, slice(1000, 1100)) for k, v in truth.items()}
+    with pytest.raises(GyronetError, match="form-bound needs records without lost rows"):
+        form_columns(gapped, sensor)

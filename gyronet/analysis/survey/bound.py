@@ -15,6 +15,7 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 
 from gyronet.analysis.survey.scoring import kept_rows, score_rates
+from gyronet.errors import GyronetError
 from gyronet.recordings.data import Recording
 from gyronet.sim.sensor import N_AXES, first_order_lag
 from gyronet.training.dataset import static_rate_dps
@@ -25,7 +26,10 @@ BOUND = "form-bound"  # its name in the survey's table
 def form_columns(truth: Mapping[str, np.ndarray], sensor: Mapping[str, Any]) -> np.ndarray:
     """The formula's terms of every axis along a record's true die temperature, shape (n, 6-7 per axis)."""
     time_s, die_c = truth["time_s"], truth["die_temp_c"]
-    fs_hz = 1.0 / float(np.median(np.diff(time_s)))
+    step_s = np.diff(time_s)
+    if step_s.max() > 1.5 * np.median(step_s):  # the lags would be filtered over the gaps: a wrong bound
+        raise GyronetError("form-bound needs records without lost rows (simulate's loss): use bound=false")
+    fs_hz = 1.0 / float(np.median(step_s))
     lags_s = sensor.get("axis_lag_s", [0.0] * N_AXES)
     knee2_dps = sensor.get("knee2_dps", [0.0] * N_AXES)
     columns = []
