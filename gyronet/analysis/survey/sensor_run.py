@@ -218,8 +218,9 @@ def _simulate_train_score(sensor_seed: int, spec: SurveySpec, folder: Path, fing
     train_csvs = [simulate_history(folder, "train" if k == 0 else f"train{k + 1}", sensor_seed, history, spec)
                   for k, history in enumerate((spec.train_history, *spec.more_train_histories))]
     check_csv = simulate_history(folder, "check", sensor_seed, spec.check_history, spec)
+    train_truths = [load_truth(path).columns for path in train_csvs]
     # a campaign's model keeps the mean of its runs' constants (gyronet.training.run_offsets)
-    trained_bias = np.mean([turn_on_bias(load_truth(path).columns) for path in train_csvs], axis=0)
+    trained_bias = np.mean([turn_on_bias(truth) for truth in train_truths], axis=0)
     check, check_truth = load_recording(check_csv), load_truth(check_csv)  # read once, scored for every method
     difference = turn_on_bias(check_truth.columns) - trained_bias
     sensor = json.loads(check_truth.meta["sensor_model"])
@@ -231,7 +232,7 @@ def _simulate_train_score(sensor_seed: int, spec: SurveySpec, folder: Path, fing
             methods[name] = {**score_bundle(bundle, check, check_truth.columns, spec.startup_s, difference),
                              "seconds": time.perf_counter() - method_start}
         if spec.bound:
-            train = [(load_recording(path), load_truth(path).columns) for path in train_csvs]
+            train = [(load_recording(path), truth) for path, truth in zip(train_csvs, train_truths)]
             methods[BOUND] = score_form_bound(train, check, check_truth.columns, sensor, spec.startup_s, difference)
     finally:
         _forget_records()
