@@ -14,7 +14,7 @@ import sys
 import numpy as np
 from scipy.interpolate import BSpline
 
-from gyronet.analysis.survey.scoring import kept_rows, score_rates, turn_on_bias
+from gyronet.analysis.survey.scoring import kept_rows, score_rates, turn_on_bias, with_startup_offset
 from gyronet.analysis.survey.sensor_run import History, noise_seed_of
 from gyronet.recordings.data import Recording
 from gyronet.sim import simulate
@@ -56,10 +56,10 @@ def score(sensor_seed: int, penalty: float) -> dict:
         coef = np.linalg.solve(gram, design.T @ (gyro["train"][:, axis] - static_dps[axis]))
         plain[:, axis] -= terms(check, axis, low_c, high_c) @ coef
     recording = Recording(check.recording, check.meta)
-    keep = kept_rows(recording, STARTUP_S)
-    deployed = plain - (plain[~keep] - static_dps).mean(axis=0)  # the start-up offset, as compensate.py's
+    deployed = with_startup_offset(recording, plain, STARTUP_S)
     difference = turn_on_bias(check.truth) - turn_on_bias(train.truth)
-    return {"sensor": sensor_seed, **score_rates(recording, check.truth, keep, deployed, plain, difference)}
+    scores = score_rates(recording, check.truth, kept_rows(recording, STARTUP_S), deployed, plain, difference)
+    return {"sensor": sensor_seed, **scores}
 
 
 if __name__ == "__main__":

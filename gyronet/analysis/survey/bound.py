@@ -14,7 +14,7 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from gyronet.analysis.survey.scoring import kept_rows, score_rates
+from gyronet.analysis.survey.scoring import kept_rows, score_rates, with_startup_offset
 from gyronet.errors import GyronetError
 from gyronet.recordings.data import Recording
 from gyronet.sim.sensor import N_AXES, first_order_lag
@@ -68,6 +68,5 @@ def score_form_bound(train: Sequence[tuple[Recording, Mapping[str, np.ndarray]]]
                      turn_on_difference_dps: np.ndarray) -> dict[str, list[float]]:
     """``form-bound`` scored as :func:`.scoring.score_bundle` scores a method (no error bar)."""
     plain_dps = form_bound_rate_dps(train, check, check_truth, sensor)
-    keep = kept_rows(check, startup_s)
-    offset_dps = (plain_dps[~keep] - static_rate_dps(check)).mean(axis=0)  # as compensate.py's start-up window
-    return score_rates(check, check_truth, keep, plain_dps - offset_dps, plain_dps, turn_on_difference_dps)
+    deployed_dps = with_startup_offset(check, plain_dps, startup_s)
+    return score_rates(check, check_truth, kept_rows(check, startup_s), deployed_dps, plain_dps, turn_on_difference_dps)

@@ -21,6 +21,7 @@ import numpy as np
 
 from gyronet.bundle.compensator import Compensator
 from gyronet.bundle.offline import compensate_as_deployed
+from gyronet.bundle.startup import StartupOffset
 from gyronet.errors import GyronetError
 from gyronet.recordings.data import AXES, Recording
 from gyronet.training.dataset import static_rate_dps
@@ -77,6 +78,12 @@ def kept_rows(recording: Recording, startup_s: float) -> np.ndarray:
     if keep.sum() < 2:
         raise GyronetError(f"{recording.path}: nothing left to score after startup_s={startup_s:g} s")
     return keep
+
+
+def with_startup_offset(recording: Recording, plain_dps: np.ndarray, startup_s: float) -> np.ndarray:
+    """``plain_dps`` (n, 3) less the run's offset from ``startup_s`` s on, measured as ``compensate.py`` measures it."""
+    window = StartupOffset(startup_s, static_rate_dps=static_rate_dps(recording))
+    return window.process(recording.time_s, plain_dps)
 
 
 def score_rates(recording: Recording, truth: Mapping[str, np.ndarray], keep: np.ndarray, deployed_dps: np.ndarray,
