@@ -2,8 +2,9 @@
 import numpy as np
 import pytest
 
-from gyronet.analysis.survey.bound import form_bound_rate_dps, score_form_bound
+from gyronet.analysis.survey.bound import form_bound_rate_dps, form_columns, score_form_bound
 from gyronet.analysis.survey.scoring import turn_on_bias
+from gyronet.errors import GyronetError
 from gyronet.recordings.data import AXES, Recording
 from gyronet.sim import simulate
 
@@ -42,9 +43,6 @@ def test_scored_with_noise_it_is_near_the_floor_and_each_run_keeps_its_constant(
 
 def test_a_record_with_lost_rows_is_refused_in_one_line():
     """The axis lags are filtered sample by sample: over a gap they would be wrong, and the bound with them."""
-    from gyronet.errors import GyronetError
-    from gyronet.analysis.survey.bound import form_columns
-
     _, truth, sensor = record("random", 2)
     gapped = {k: np.delete(v, slice(1000, 1100)) for k, v in truth.items()}
     with pytest.raises(GyronetError, match="form-bound needs records without lost rows"):
