@@ -15,7 +15,7 @@ from gyronet.training.error_bar_fit import calibrate, cross_check
 from gyronet.errors import BundleError
 from gyronet.model.rbf import RBFNet
 from gyronet.bundle.offline import SIGMA_COLUMNS, compensate_file
-from gyronet.training.sigma_table import block_coverage, score_simulated
+from gyronet.training.sigma_table import block_coverage, calibrated_range, score_simulated
 
 
 def _members(n_members: int = 3, n_inputs: int = 3) -> list:
@@ -132,6 +132,23 @@ def test_block_coverage_counts_blocks_within_one_sigma():
     assert score["outside"]["within_1_sigma"]["y"] == 0.0
     noisy = block_coverage(time_s, error, sigma, outside, noise_var=np.full(3, 0.0045 ** 2 * 3))  # bar x2
     assert noisy["within_1_sigma"]["z"] == pytest.approx(0.9)
+    low, high = score["calibrated_range"]["x"]  # nine blocks of a smooth ramp: a calibrated bar could give most shares
+    assert low < 0.5 < high and score["outside"]["calibrated_range"]["x"][1] <= 1.0
+
+
+def test_a_calibrated_bar_range_follows_the_errors_correlation_not_their_scale():
+    """calibrated_range: independent blocks give the binomial range; one shared error gives nearly all or none."""
+    rng = np.random.default_rng(5)
+    white = rng.standard_normal(500)
+    low, high = calibrated_range(white)
+    half_width = 1.645 * math.sqrt(0.6827 * 0.3173 / 500)  # a binomial share's 90 % range
+    assert low == pytest.approx(0.6827 - half_width, abs=0.015) and high == pytest.approx(0.6827 + half_width, abs=0.015)
+    assert calibrated_range(3.0 * white) == (low, high)  # a bar 3x too narrow shares the range ...
+    assert not low <= np.mean(np.abs(3.0 * white) <= 1.0) <= high  # ... and falls outside it
+    shared = 0.4 + 0.05 * rng.standard_normal(500)  # one error in every block, as a start-up offset's
+    low, high = calibrated_range(shared)
+    assert low < 0.3 and high > 0.95
+    assert all(math.isnan(v) for v in calibrated_range(np.zeros(0)))
 
 
 def test_compensate_writes_finite_sigma_columns_larger_outside_the_trained_range(bundle, tmp_path):
@@ -236,6 +253,7 @@ def test_a_still_run_is_scored_against_zero_with_its_noise_and_tabled(tmp_path):
     row = {"kind": "real", "trained_on": "a", "held_out": "b", "score": score}
     text = to_markdown([row])
     assert "| a | b | 110 |" in text and "real" in text
+    assert "Real row-axes within the range a calibrated bar gives on 90 % of runs: " in text
     out = write_table([row], tmp_path / "t.md", {"k": 1})
     assert json.loads(out.with_suffix(".json").read_text())["rows"][0]["score"]["n_blocks"] == 110
 

@@ -196,6 +196,7 @@ def test_the_survey_command_writes_its_table_and_resumes(tmp_path, monkeypatch, 
     assert "gyronet / PX4-cubic, worst axis, as deployed: worst sensor" in table
     assert "Sensors that miss a goal: " in table
     assert re.search(r"gyronet's error bar as deployed \(2 sensors\): \d+ % of 60 s blocks within 1 sigma", table)
+    assert re.search(r"Sensor-axes within the range a calibrated bar gives on 90 % of runs .*: \d of 6\.", table)
     everything = json.loads((out / "survey.json").read_text())
     sensors = everything["sensors"]
     assert [s["sensor_seed"] for s in sensors] == [0, 1]
@@ -207,6 +208,7 @@ def test_the_survey_command_writes_its_table_and_resumes(tmp_path, monkeypatch, 
             assert all(np.isfinite(scores[v]).all() and min(scores[v]) > 0.5 for v in ("deployed", "as_is"))
         bar = s["methods"]["gyronet"]["error_bar"]  # the bar as deployed: coverage and the recalibration check
         assert all(0.0 <= w <= 1.0 for w in bar["within_1_sigma"]) and min(bar["worst_hour_rms_ratio"]) > 0
+        assert all(0.0 <= low <= high <= 1.0 for low, high in bar["calibrated_range"])
         # few steps and a tiny record, but trained on its own history the network still beats the cubic
         assert max(s["methods"]["gyronet"]["deployed"]) < max(s["methods"]["PX4-cubic"]["deployed"])
         # the simulator's own formula, its coefficients fitted: better than both

@@ -68,6 +68,7 @@ def score_bundle(bundle: Path, recording: Recording, truth: Mapping[str, np.ndar
         score = score_against_truth(recording.time_s[keep], deployed.rate_dps[keep], sigma,
                                     deployed.out_of_range[keep], kept_truth)
         scores["error_bar"] = {"within_1_sigma": [score["within_1_sigma"][a] for a in AXES],
+                               "calibrated_range": [score["calibrated_range"][a] for a in AXES],
                                "worst_hour_rms_ratio": [score["recalibration"][a]["worst_hour_rms_ratio"] for a in AXES]}
     return scores
 
