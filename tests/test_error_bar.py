@@ -15,7 +15,8 @@ from gyronet.training.error_bar_fit import calibrate, cross_check
 from gyronet.errors import BundleError
 from gyronet.model.rbf import RBFNet
 from gyronet.bundle.offline import SIGMA_COLUMNS, compensate_file
-from gyronet.training.sigma_table import block_coverage, calibrated_range, score_simulated
+from gyronet.model.recalibration import calibrated_range
+from gyronet.training.sigma_table import block_coverage, score_simulated
 
 
 def _members(n_members: int = 3, n_inputs: int = 3) -> list:

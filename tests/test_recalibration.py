@@ -38,6 +38,10 @@ def test_a_bar_that_describes_the_error_holds_and_one_three_times_too_narrow_ask
         assert narrow[axis]["recalibrate"] and narrow[axis]["worst_hour_rms_ratio"] > 2.5
     assert holds["x"]["n_blocks"] == 360 and holds["x"]["window_s"] == 3600.0
     assert summary_line("x", holds["x"]).startswith("x: within its error bar")
+    for axis in "xyz":  # where the bar holds, its share is inside the range one run gives; 3x too narrow, below it
+        low, high = holds[axis]["calibrated_range"]
+        assert low <= holds[axis]["within_1_sigma"] <= high and narrow[axis]["within_1_sigma"] < low
+    assert "% within 1 on 9 runs in 10 like this one)" in summary_line("x", holds["x"])
     assert summary_line("y", narrow["y"]).startswith("y: recalibrate: over the 60 min from")
 
 

@@ -25,11 +25,38 @@ from gyronet.recordings.data import AXES
 
 HOUR_S = 3600.0
 HOUR_RMS_LIMIT = 2.0  # an hour's RMS of (block mean / its bar) above this: recalibrate
+CALIBRATED_QUANTILES = (0.05, 0.95)  # the range a calibrated bar's share falls in on 90 % of runs
+
+
+def calibrated_range(z: np.ndarray, draws: int = 2000, seed: int = 0) -> tuple[float, float]:
+    """The within-1-sigma share a calibrated bar would give on errors as correlated as these (5th, 95th percentile).
+
+    ``z`` is one axis's block errors over their bar, in time order. Neighbouring blocks share most of
+    their error (the start-up offset's error is in every block), so one run holds fewer independent
+    blocks than it has blocks. The draws are Gaussian series with ``z``'s own autocorrelation (its mean
+    kept in it), scaled to unit variance: what a bar that is right on average would show on one run.
+    """
+    z = np.asarray(z, dtype=np.float64)
+    m = len(z)
+    if m == 0 or not np.any(z):
+        return float("nan"), float("nan")
+    # circulant embedding of z's sample autocorrelation (Dietrich & Newsam 1997): its eigenvalues are the
+    # periodogram of z padded to 2m, never negative, so every draw is exact for lags under m
+    eigen = np.abs(np.fft.fft(z / np.sqrt(np.mean(z ** 2)), 2 * m)) ** 2 / m
+    rng = np.random.default_rng(seed)
+    shares = []
+    for _ in range(0, draws, 100):  # 50 complex draws (100 real series) at a time: memory stays small on long runs
+        noise = rng.standard_normal((50, 2 * m)) + 1j * rng.standard_normal((50, 2 * m))
+        series = np.fft.fft(np.sqrt(eigen / (2 * m)) * noise, axis=1)[:, :m]
+        shares.append(np.mean(np.abs(np.concatenate([series.real, series.imag])) <= 1.0, axis=1))
+    low, high = np.quantile(np.concatenate(shares), CALIBRATED_QUANTILES)
+    return float(low), float(high)
 
 
 def check(time_s: np.ndarray, rate_dps: np.ndarray, sigma_dps: np.ndarray, outside: np.ndarray | None = None,
           still_s: float = 0.0, block_s: float = BLOCK_S) -> dict[str, dict[str, Any]]:
-    """Per axis: the share of blocks within 1 and 2 sigma, the worst hour's RMS ratio, and the verdict.
+    """Per axis: the share of blocks within 1 and 2 sigma (and the range of the first where the bar holds,
+    ``calibrated_range``), the worst hour's RMS ratio, and the verdict.
 
     ``time_s, rate_dps, sigma_dps``: a compensated still record (true rate zero once its start-up
     offset is applied, from ``still_s`` s on) and its ``drift_sigma`` columns; ``outside``: its
@@ -50,11 +77,11 @@ def check(time_s: np.ndarray, rate_dps: np.ndarray, sigma_dps: np.ndarray, outsi
     counts = np.diff(np.append(starts, len(index)))
     means = np.add.reduceat(np.column_stack([rate, sigma_dps[keep], flags]), starts, axis=0) / counts[:, None]
     return judge_blocks(still_s + block_s * index[starts], means, counts, np.mean(np.diff(rate, axis=0) ** 2, axis=0),
-                        block_s)
+                        block_s, ranges=True)
 
 
 def judge_blocks(start_s: np.ndarray, means: np.ndarray, counts: np.ndarray, mean_step_sq: np.ndarray,
-                 block_s: float = BLOCK_S) -> dict[str, dict[str, Any]]:
+                 block_s: float = BLOCK_S, ranges: bool = False) -> dict[str, dict[str, Any]]:
     """:func:`judge` on the blocks that hold half the samples of a full one (the median), {} under two.
 
     ``means`` (m, 7): each block's mean rate (3), bar (3) and share outside the trained temperatures;
@@ -67,16 +94,17 @@ def judge_blocks(start_s: np.ndarray, means: np.ndarray, counts: np.ndarray, mea
         return {}
     start_s, means = start_s[full], means[full]
     return judge(start_s, start_s[-1] + block_s, means[:, :3], means[:, 3:6], means[:, 6] > 0,
-                 0.5 * np.asarray(mean_step_sq) / full_count)
+                 0.5 * np.asarray(mean_step_sq) / full_count, ranges)
 
 
 def judge(start_s: np.ndarray, end_s: float, rate_dps: np.ndarray, sigma_dps: np.ndarray, outside: np.ndarray,
-          noise_var: np.ndarray) -> dict[str, dict[str, Any]]:
+          noise_var: np.ndarray, ranges: bool = False) -> dict[str, dict[str, Any]]:
     """:func:`check` on blocks already formed (the live stream forms them as it goes).
 
     ``start_s`` (m,) each block's start and ``end_s`` the record's end, s; ``rate_dps`` and
     ``sigma_dps`` (m, 3) the blocks' mean rate and bar; ``outside`` (m,) whether a block has a sample
     outside the trained temperatures; ``noise_var`` (3,) the variance of a block mean's white noise.
+    ``ranges``: also each axis's :func:`calibrated_range` (a few hundredths of a second an axis; not live).
     """
     bar = np.sqrt(np.asarray(sigma_dps) ** 2 + noise_var)
     ratio = np.abs(rate_dps) / np.maximum(bar, 1e-12)  # a bar of 0 (no noise, no floor) and no error: 0
@@ -94,18 +122,22 @@ def judge(start_s: np.ndarray, end_s: float, rate_dps: np.ndarray, sigma_dps: np
                      "worst_hour_rms_ratio": float(hour_rms[worst]), "worst_hour_start_s": float(start_s[worst]),
                      "window_s": float(window_s), "blocks_out_of_range": int(np.sum(outside)),
                      "recalibrate": bool(hour_rms[worst] > HOUR_RMS_LIMIT)}
+        if ranges:
+            out[axis]["calibrated_range"] = list(calibrated_range(rate_dps[:, a] / np.maximum(bar[:, a], 1e-12)))
     return out
 
 
 def summary_line(axis: str, result: dict[str, Any]) -> str:
     """One line for a person: the verdict, the worst hour, and the shares within 1 and 2 sigma."""
     verdict = "recalibrate" if result["recalibrate"] else "within its error bar"
+    low, high = result.get("calibrated_range", (float("nan"),) * 2)
+    luck = f", and {100 * low:.0f}-{100 * high:.0f} % within 1 on 9 runs in 10 like this one" if np.isfinite(low) else ""
     outside = f"; {result['blocks_out_of_range']} blocks outside the trained temperatures" \
         if result["blocks_out_of_range"] else ""
     return (f"{axis}: {verdict}: over the {result['window_s'] / 60:.0f} min from {result['worst_hour_start_s']:.0f} s its "
             f"60 s means are {result['worst_hour_rms_ratio']:.2f}x the bar in RMS (limit {HOUR_RMS_LIMIT:g}); "
             f"{result['within_1_sigma']:.0%} of {result['n_blocks']} blocks within 1 sigma, "
-            f"{result['within_2_sigma']:.0%} within 2 (about 68 and 95 % where the bar holds){outside}")
+            f"{result['within_2_sigma']:.0%} within 2 (where the bar holds: about 68 and 95 %{luck}){outside}")
 
 
-__all__ = ["HOUR_RMS_LIMIT", "check", "judge", "judge_blocks", "summary_line"]
+__all__ = ["HOUR_RMS_LIMIT", "calibrated_range", "check", "judge", "judge_blocks", "summary_line"]

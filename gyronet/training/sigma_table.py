@@ -29,39 +29,11 @@ from gyronet.model.error_bar import BLOCK_S
 from gyronet.recordings.data import AXES, load_recording, load_truth
 from gyronet.training.dataset import residual_block_means
 from gyronet.training.error_bar_fit import white_noise_var
-from gyronet.model.recalibration import check
+from gyronet.model.recalibration import calibrated_range, check
 
 log = logging.getLogger(__name__)
 
 GOAL = (0.60, 0.76)
-CALIBRATED_QUANTILES = (0.05, 0.95)  # the range a calibrated bar's share falls in on 90 % of runs
-
-
-def calibrated_range(z: np.ndarray, draws: int = 2000, seed: int = 0) -> tuple[float, float]:
-    """The within-1-sigma share a calibrated bar would give on errors as correlated as these (5th, 95th percentile).
-
-    ``z`` is one axis's block errors over their bar, in time order. Neighbouring blocks share most of
-    their error (the start-up offset's error is in every block), so one run holds fewer independent
-    blocks than it has blocks. The draws are Gaussian series with ``z``'s own autocorrelation (its mean
-    kept in it), scaled to unit variance: what a bar that is right on average would show on one run.
-    """
-    z = np.asarray(z, dtype=np.float64)
-    m = len(z)
-    if m == 0 or not np.any(z):
-        return float("nan"), float("nan")
-    # circulant embedding of z's sample autocorrelation (Dietrich & Newsam 1997): its eigenvalues are the
-    # periodogram of z padded to 2m, never negative, so every draw is exact for lags under m
-    eigen = np.abs(np.fft.fft(z / np.sqrt(np.mean(z ** 2)), 2 * m)) ** 2 / m
-    rng = np.random.default_rng(seed)
-    shares = []
-    for _ in range(0, draws, 100):  # 50 complex draws (100 real series) at a time: memory stays small on long runs
-        noise = rng.standard_normal((50, 2 * m)) + 1j * rng.standard_normal((50, 2 * m))
-        series = np.fft.fft(np.sqrt(eigen / (2 * m)) * noise, axis=1)[:, :m]
-        shares.append(np.mean(np.abs(np.concatenate([series.real, series.imag])) <= 1.0, axis=1))
-    low, high = np.quantile(np.concatenate(shares), CALIBRATED_QUANTILES)
-    return float(low), float(high)
-
-
 def block_coverage(time_s: np.ndarray, error_dps: np.ndarray, sigma_dps: np.ndarray, outside: np.ndarray,
                    noise_var: np.ndarray | None = None, block_s: float = BLOCK_S) -> dict[str, Any]:
     """Per axis, the share of ``block_s`` blocks whose mean error is within 1 (and 2) sigma.
@@ -248,5 +220,5 @@ def write_table(rows: Sequence[Mapping[str, Any]], output: str | Path, config: M
     return output
 
 
-__all__ = ["GOAL", "allan_sigma_summary", "block_coverage", "calibrated_range", "consistent_cells", "error_bar_summary",
+__all__ = ["GOAL", "allan_sigma_summary", "block_coverage", "consistent_cells", "error_bar_summary",
            "pooled_share", "score_against_truth", "score_simulated", "score_still", "to_markdown", "write_table"]
