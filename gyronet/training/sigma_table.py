@@ -34,6 +34,8 @@ from gyronet.model.recalibration import calibrated_range, check
 log = logging.getLogger(__name__)
 
 GOAL = (0.60, 0.76)
+
+
 def block_coverage(time_s: np.ndarray, error_dps: np.ndarray, sigma_dps: np.ndarray, outside: np.ndarray,
                    noise_var: np.ndarray | None = None, block_s: float = BLOCK_S) -> dict[str, Any]:
     """Per axis, the share of ``block_s`` blocks whose mean error is within 1 (and 2) sigma.
