@@ -29,26 +29,34 @@ CALIBRATED_QUANTILES = (0.05, 0.95)  # the range a calibrated bar's share falls 
 
 
 def calibrated_range(z: np.ndarray, draws: int = 2000, seed: int = 0) -> tuple[float, float]:
-    """The within-1-sigma share a calibrated bar would give on errors as correlated as these (5th, 95th percentile).
+    """Where a bar that holds could put one run's within-1-sigma share, on 9 runs in 10 (5th, 95th percentile).
 
-    ``z`` is one axis's block errors over their bar, in time order. Neighbouring blocks share most of
-    their error (the start-up offset's error is in every block), so one run holds fewer independent
-    blocks than it has blocks. The draws are Gaussian series with ``z``'s own autocorrelation (its mean
-    kept in it), scaled to unit variance: what a bar that is right on average would show on one run.
+    ``z`` is one axis's block errors over their bar, in time order. A run's blocks share most of their
+    error: a constant (the start-up offset's error, the model's mean error over the run) and a slow
+    wander, so one run holds fewer independent blocks than it has blocks, and how large the constant
+    is one run draws once. The draws keep the run's wander (``z`` less its mean: its autocorrelation,
+    its variance up to 1) and give the constant whatever variance is left of 1. So the range is the
+    widest a holding bar allows: a share below it says the bar is too narrow; one run cannot show a
+    bar too wide, as a small constant is always possible.
     """
     z = np.asarray(z, dtype=np.float64)
     m = len(z)
     if m == 0 or not np.any(z):
         return float("nan"), float("nan")
-    # circulant embedding of z's sample autocorrelation (Dietrich & Newsam 1997): its eigenvalues are the
-    # periodogram of z padded to 2m, never negative, so every draw is exact for lags under m
-    eigen = np.abs(np.fft.fft(z / np.sqrt(np.mean(z ** 2)), 2 * m)) ** 2 / m
+    wander = z - z.mean()
+    variance = float(np.mean(wander ** 2))
+    scale = min(1.0, variance) / variance if variance > 0 else 0.0
+    # circulant embedding of the wander's sample autocovariance (Dietrich & Newsam 1997): its eigenvalues are
+    # the periodogram of the wander padded to 2m, never negative, so every draw is exact for lags under m
+    eigen = scale * np.abs(np.fft.fft(wander, 2 * m)) ** 2 / m
+    constant_sd = np.sqrt(max(0.0, 1.0 - variance))
     rng = np.random.default_rng(seed)
     shares = []
     for _ in range(0, draws, 100):  # 50 complex draws (100 real series) at a time: memory stays small on long runs
         noise = rng.standard_normal((50, 2 * m)) + 1j * rng.standard_normal((50, 2 * m))
         series = np.fft.fft(np.sqrt(eigen / (2 * m)) * noise, axis=1)[:, :m]
-        shares.append(np.mean(np.abs(np.concatenate([series.real, series.imag])) <= 1.0, axis=1))
+        series = np.concatenate([series.real, series.imag]) + constant_sd * rng.standard_normal((100, 1))
+        shares.append(np.mean(np.abs(series) <= 1.0, axis=1))
     low, high = np.quantile(np.concatenate(shares), CALIBRATED_QUANTILES)
     return float(low), float(high)
 
