@@ -11,7 +11,9 @@ per 60 s block ``b`` and axis:
   the run's own first differences) is added: within when ``|e_b| <= sqrt(s_b^2 + n^2)``.
 
 Blocks with any sample outside the trained temperatures (``out_of_range``) are counted apart, with
-the median bar inside and outside (how much wider it gets). Goal: 60-76 % within 1 sigma. Each row
+the median bar inside and outside (how much wider it gets). Goal: 60-76 % within 1 sigma; each share
+also has the widest range a bar that holds allows its run (``calibrated_range``): below it, the bar is
+too narrow beyond one run's luck. Each row
 also has ``allan.py``'s recalibration check (``gyronet.model.recalibration``; on a simulated
 record the true rate removed and its noise kept): a worst hour above 2x the bar asks for one.
 """
