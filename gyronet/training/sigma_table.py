@@ -13,9 +13,9 @@ per 60 s block ``b`` and axis:
 Blocks with any sample outside the trained temperatures (``out_of_range``) are counted apart, with
 the median bar inside and outside (how much wider it gets). Goal: 60-76 % within 1 sigma; each share
 also has the widest range a bar that holds allows its run (``calibrated_range``): below it, the bar is
-too narrow beyond one run's luck. Each row
-also has ``allan.py``'s recalibration check (``gyronet.model.recalibration``; on a simulated
-record the true rate removed and its noise kept): a worst hour above 2x the bar asks for one.
+too narrow beyond one run's luck. Each row also has ``allan.py``'s recalibration check
+(``gyronet.model.recalibration``; on a simulated record the true rate removed and its noise kept):
+a worst hour above 2x the bar asks for one.
 """
 from __future__ import annotations
 
