@@ -127,7 +127,7 @@ def test_block_coverage_counts_blocks_within_one_sigma():
     sigma = np.full((600, 3), 0.0045)
     outside = np.zeros(600, dtype=bool)
     outside[540:] = True  # the last block
-    score = block_coverage(time_s, error, sigma, outside)
+    score = block_coverage(time_s, error, sigma, outside, ranges=True)
     assert score["n_blocks"] == 10 and score["within_1_sigma"]["x"] == pytest.approx(0.5)
     assert score["inside"]["n_blocks"] == 9 and score["outside"]["n_blocks"] == 1
     assert score["outside"]["within_1_sigma"]["y"] == 0.0

@@ -39,7 +39,8 @@ GOAL = (0.60, 0.76)
 
 
 def block_coverage(time_s: np.ndarray, error_dps: np.ndarray, sigma_dps: np.ndarray, outside: np.ndarray,
-                   noise_var: np.ndarray | None = None, block_s: float = BLOCK_S) -> dict[str, Any]:
+                   noise_var: np.ndarray | None = None, block_s: float = BLOCK_S,
+                   ranges: bool = False) -> dict[str, Any]:
     """Per axis, the share of ``block_s`` blocks whose mean error is within 1 (and 2) sigma.
 
     Parameters
@@ -52,12 +53,14 @@ def block_coverage(time_s: np.ndarray, error_dps: np.ndarray, sigma_dps: np.ndar
         (n,) bool: outside the trained box (a block with any such sample is an "outside" block).
     noise_var
         (3,) known variance of a block's mean that the bar does not hold (white noise), (deg/s)^2.
+    ranges
+        also each share's :func:`calibrated_range` (the tables read it; training's evaluation does not).
 
     Returns
     -------
     dict
         ``n_blocks``, ``within_1_sigma`` and ``within_2_sigma`` per axis (all blocks), with
-        ``calibrated_range`` (:func:`calibrated_range`); the same for the blocks ``inside`` and
+        ``calibrated_range`` when ``ranges``; the same for the blocks ``inside`` and
         ``outside``, and ``median_sigma_dps`` inside and outside.
     """
     stacked = np.column_stack([error_dps, sigma_dps, outside.astype(np.float64)])
@@ -69,13 +72,15 @@ def block_coverage(time_s: np.ndarray, error_dps: np.ndarray, sigma_dps: np.ndar
 
     def shares(rows: np.ndarray) -> dict[str, Any]:
         n = int(rows.sum())
-        return {"n_blocks": n,
-                "within_1_sigma": dict(zip(AXES, (np.mean(ratio[rows] <= 1, 0) if n else np.full(3, np.nan)).tolist())),
-                "calibrated_range": {a: list(calibrated_range(z[rows, i])) for i, a in enumerate(AXES)},
-                "within_2_sigma": dict(zip(AXES, (np.mean(ratio[rows] <= 2, 0) if n else np.full(3, np.nan)).tolist())),
-                "median_sigma_dps": dict(zip(AXES, (np.median(sigma[rows], 0) if n else np.full(3, np.nan)).tolist())),
-                "rms_error_dps": dict(zip(AXES, (np.sqrt(np.mean(error[rows] ** 2, 0)) if n
-                                                 else np.full(3, np.nan)).tolist()))}
+        nan = np.full(3, np.nan)
+        share = {"n_blocks": n,
+                 "within_1_sigma": dict(zip(AXES, (np.mean(ratio[rows] <= 1, 0) if n else nan).tolist())),
+                 "within_2_sigma": dict(zip(AXES, (np.mean(ratio[rows] <= 2, 0) if n else nan).tolist())),
+                 "median_sigma_dps": dict(zip(AXES, (np.median(sigma[rows], 0) if n else nan).tolist())),
+                 "rms_error_dps": dict(zip(AXES, (np.sqrt(np.mean(error[rows] ** 2, 0)) if n else nan).tolist()))}
+        if ranges:
+            share["calibrated_range"] = {a: list(calibrated_range(z[rows, i])) for i, a in enumerate(AXES)}
+        return share
 
     everything = shares(np.ones(len(error), dtype=bool))
     return {**everything, "inside": everything if not out.any() else shares(~out), "outside": shares(out)}
@@ -135,7 +140,7 @@ def score_against_truth(time_s: np.ndarray, rate_dps: np.ndarray, sigma_dps: np.
     the check ``allan.py`` makes on a still record, here on the rate less the true rate (the noise kept)."""
     true_rate = np.column_stack([truth[f"true_rate_{a}_dps"] for a in AXES])
     noise = np.column_stack([truth[f"noise_{a}_dps"] for a in AXES])
-    score = block_coverage(time_s, rate_dps - true_rate - noise, sigma_dps, outside)
+    score = block_coverage(time_s, rate_dps - true_rate - noise, sigma_dps, outside, ranges=True)
     score["recalibration"] = check(time_s, rate_dps - true_rate, sigma_dps, outside)
     return score
 
@@ -145,7 +150,7 @@ def score_still(compensated_path: str | Path, still_s: float = 0.0) -> dict[str,
     time_s, rate_dps, sigma, outside = _compensated(compensated_path)
     keep = time_s - time_s[0] >= still_s
     time_s, rate_dps, sigma, outside = time_s[keep], rate_dps[keep], sigma[keep], outside[keep]
-    score = block_coverage(time_s, rate_dps, sigma, outside, white_noise_var(time_s, rate_dps))
+    score = block_coverage(time_s, rate_dps, sigma, outside, white_noise_var(time_s, rate_dps), ranges=True)
     score["recalibration"] = check(time_s, rate_dps, sigma, outside)
     return score
 
@@ -172,7 +177,8 @@ def to_markdown(rows: Sequence[Mapping[str, Any]]) -> str:
     for row in rows:
         s, i, o = row["score"], row["score"]["inside"], row["score"]["outside"]
         lines.append(f"| {row['trained_on']} | {row['held_out']} | {s['n_blocks']} | {pct(s['within_1_sigma'])} | "
-                     f"{span(s['calibrated_range'])} | {pct(s['within_2_sigma'])} | {i['n_blocks']}: {pct(i['within_1_sigma'])} | "
+                     f"{span(s['calibrated_range'])} | {pct(s['within_2_sigma'])} | "
+                     f"{i['n_blocks']}: {pct(i['within_1_sigma'])} | "
                      f"{o['n_blocks']}: {pct(o['within_1_sigma'])} | {mdps(i['median_sigma_dps'])} | "
                      f"{mdps(o['median_sigma_dps'])} | {mdps(i['rms_error_dps'])} | {hour(s.get('recalibration', {}))} |")
     pooled = pooled_share(rows)
