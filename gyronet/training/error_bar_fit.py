@@ -22,9 +22,9 @@ STATS_ATTR = "_error_bar_stats"  # held-out statistics a fit attaches to its mod
 MEMBERS_ATTR = "_error_bar_members"  # the bundle's members (the starts it mixes), when more than one
 CACHE_ATTR = "_error_bar_meta"  # (data, the meta.json block) once computed
 # beyond the box, a straight-line continuation is taken to be off by this share of its slope (per
-# normalised unit of distance); set on calibration sensors 10-15 with the posterior floor (0: only what the
-# slope curves is counted; docs/guides/error-bars.md), never on the sensors the table scores
-EXTRAPOLATION_SHARE = 0.0
+# normalised unit of distance); set on calibration sensors 10-27 with the posterior floor (docs/guides/error-bars.md),
+# never on the sensors the table and the survey score
+EXTRAPOLATION_SHARE = 0.05
 MIN_BLOCKS = 4  # fewer held-out blocks than this: the floor is their RMS, the spread scale 1
 _FLOOR_GRID = np.geomspace(1e-3, 3.0, 200)  # times the held-out blocks' RMS
 _SCALE_GRID = np.concatenate([[0.0], np.geomspace(0.05, 30.0, 60)])
