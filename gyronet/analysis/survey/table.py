@@ -14,7 +14,7 @@ import numpy as np
 from gyronet.atomic import atomic_output
 from gyronet.model.recalibration import HOUR_RMS_LIMIT
 from gyronet.recordings.data import AXES
-from gyronet.training.sigma_table import GOAL
+from gyronet.training.sigma_table import BELOW_RANGE, GOAL
 from gyronet.errors import GyronetError
 from gyronet.analysis.survey.scoring import VARIANTS
 from gyronet.analysis.survey.sensor_run import describe_sensor
@@ -150,8 +150,7 @@ def to_markdown(summary: Mapping[str, Any], settings: Mapping[str, Any]) -> str:
                   f"{bar['worst_hour_rms_ratio_max']:.2f}x the bar.", ""]
         below, cells = bar["below_calibrated_range"]
         if cells:
-            lines[-2] += (f" Sensor-axes below the range a bar that holds gives on 9 runs in 10 (too narrow, beyond "
-                          f"one run's luck): {below} of {cells}.")
+            lines[-2] += f" Sensor-axes {BELOW_RANGE}: {below} of {cells}."
     misses = summary["misses"]
     lines.append("Sensors that miss a goal: " + ("none" if not misses else "; ".join(
         f"{seed} ({', '.join(what)})" for seed, what in sorted(misses.items(), key=lambda kv: int(kv[0])))) + ".")
