@@ -23,7 +23,7 @@ from gyronet.bundle.compensator import Compensator
 from gyronet.recordings.data import AXES, load_recording, load_truth
 from gyronet.training.dataset import DriftData, residual_block_means
 from gyronet.training.pipeline import train_run
-from gyronet.training.sigma_table import block_coverage
+from gyronet.training.sigma_table import GOAL, block_coverage
 from gyronet.sim import simulate, write_simulation
 
 ROOT = Path("outputs/sigma_variants")
@@ -126,8 +126,8 @@ def main(sensors: list[int]) -> None:
           "cells below the range")
     for key, values in results.items():
         within, low = np.array(values)[..., 0], np.array(values)[..., 1]
-        print(f"{key}: {np.round(within, 2).tolist()} mean {within.mean():.3f}; in 60-76 %: "
-              f"{np.sum((within >= 0.6) & (within <= 0.76))} of {within.size}; distance from 68 %: "
+        print(f"{key}: {np.round(within, 2).tolist()} mean {within.mean():.3f}; in {100 * GOAL[0]:.0f}-{100 * GOAL[1]:.0f} %: "
+              f"{np.sum((within >= GOAL[0]) & (within <= GOAL[1]))} of {within.size}; distance from 68 %: "
               f"{100 * np.mean(np.abs(within - 0.6827)):.1f} points; below: {np.sum(within < low)}")
 
 

@@ -35,6 +35,7 @@ def window_figures(compensator: Compensator, csv: Path) -> tuple[np.ndarray, np.
 
 
 def rms(values: np.ndarray) -> float:
+    """Root mean square: the scale of a signed error over the sensor-axes."""
     return float(np.sqrt(np.mean(values ** 2)))
 
 
