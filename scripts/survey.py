@@ -1,7 +1,7 @@
 """The survey: python scripts/survey.py [n_sensors=100 jobs=2] [hydra.run.dir=D] (see conf/survey.yaml).
 
 Per sensor: D/sensors/sensor_<seed>/ (records, one bundle per method, result.json); then D/survey.md,
-D/survey.json and D/survey_sensors.csv. Run again with the same hydra.run.dir to resume.
+D/survey.json, D/survey_sensors.csv and D/survey.png. Run again with the same hydra.run.dir to resume.
 """
 import logging
 import sys
@@ -66,7 +66,7 @@ def main(cfg: DictConfig) -> None:
                 "methods": dict(chosen), "train_overrides": list(cfg.train_overrides),
                 "first_seed": cfg.first_seed}
     output = write_outputs(results, summary, settings, cfg.output)
-    log.info("survey table %s (and .json, _sensors.csv), %.0f s a sensor (median):\n%s", output,
+    log.info("survey table %s (and .json, _sensors.csv, .png), %.0f s a sensor (median):\n%s", output,
              summary["seconds_per_sensor"], to_markdown(summary, settings))
 
 

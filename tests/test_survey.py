@@ -19,6 +19,7 @@ from gyronet.sim import draw_sensor, simulate
 from gyronet.sim.sensor import SURVEY_FIELDS, SensorModel
 from gyronet.sim.survey_sensor import SURVEY_RANGES
 from gyronet.analysis.survey import summarize, to_markdown
+from gyronet.figures.plots import survey_figure
 from gyronet.analysis.survey.scoring import turn_on_bias
 from gyronet.recordings.data import load_truth
 
@@ -219,6 +220,7 @@ def test_the_survey_command_writes_its_table_and_resumes(tmp_path, monkeypatch, 
     assert [float(v) for v in lines[1].split(",")[4:8]] == pytest.approx(sensors[0]["methods"]["gyronet"]["deployed"]
                                                                            + [max(sensors[0]["methods"]["gyronet"]["deployed"])], abs=1e-4)
     assert not list(out.glob("sensors/*/*.csv")), "records removed once scored (keep_records=false)"
+    assert (out / "survey.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     # a sensor that failed is counted and named, and left out of the figures
     failed = summarize([*sensors, {"sensor_seed": 7, "error": "check.csv: nothing left to score"}], "gyronet", "PX4-cubic")
     assert failed["n_sensors"] == 2 and failed["rows"] == summarize(sensors, "gyronet", "PX4-cubic")["rows"]
@@ -240,6 +242,30 @@ def test_the_survey_command_writes_its_table_and_resumes(tmp_path, monkeypatch, 
     assert [p.stat().st_mtime_ns for p in results] == stamps
     assert (out / "survey.md").read_text() == table
     assert "2 of 2 sensors reused" in (out / "survey.log").read_text()
+
+
+def test_the_survey_figure_draws_each_method_s_sorted_worst_axis_and_the_error_bar_s_misses():
+    def sensor(seed, ours, cubic, within, low):
+        bar = {"within_1_sigma": within, "calibrated_range": [[low, 0.95]] * 3, "worst_hour_rms_ratio": [1.0] * 3}
+        return {"sensor_seed": seed, "methods": {
+            "gyronet": {"deployed": ours, "turn_on_removed": [v - 0.02 for v in ours], "as_is": ours, "error_bar": bar},
+            "PX4-cubic": {"deployed": cubic, "turn_on_removed": cubic, "as_is": cubic}}}
+
+    results = [sensor(0, [1.2, 1.1, 1.0], [30, 40, 20], [0.7, 0.2, 0.9], 0.3),
+               sensor(1, [1.05, 1.0, 1.08], [25, 10, 5], [0.65, 0.6, 0.5], 0.1), {"sensor_seed": 2, "error": "boom"}]
+    fig = survey_figure(results, "gyronet", {"p90_max": 1.15, "worst_max": 1.3})
+    goals, every, bar = fig.axes
+    ours, truth_bias, staircase = goals.get_lines()
+    assert list(ours.get_ydata()) == [1.08, 1.2, 1.2] and list(truth_bias.get_ydata()) == pytest.approx([1.06, 1.18, 1.18])
+    assert list(staircase.get_ydata()) == [1.15, 1.15, 1.3, 1.3]
+    assert "PX4-cubic" not in [line.get_label() for line in goals.get_lines()], "far off the goals: beside them"
+    assert list(every.get_lines()[2].get_ydata()) == [25, 40, 40] and every.get_yscale() == "log"
+    assert [text.get_text() for text in bar.get_legend().get_texts()][-1] == "below that range (1)"  # 0.2 < 0.3
+    assert bar.get_title() == "gyronet's error bar as deployed: 59 % pooled"
+    # near the goals alone: no log panel; no error bar: no bar panel
+    for r in results[:2]:
+        r["methods"].pop("PX4-cubic"), r["methods"]["gyronet"].pop("error_bar")
+    assert len(survey_figure(results, "gyronet", {"p90_max": 1.15, "worst_max": 1.3}).axes) == 1
 
 
 def test_more_training_histories_train_every_method_as_a_campaign(tmp_path, monkeypatch):

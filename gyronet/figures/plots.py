@@ -1,12 +1,13 @@
-"""Figures people would rather look at than read: raw versus compensated, residual versus temperature."""
+"""Figures people would rather look at than read: raw versus compensated, residual versus temperature, the survey."""
 from __future__ import annotations
 
-from typing import Mapping
+from typing import Any, Mapping, Sequence
 
 import matplotlib
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
+from matplotlib import ticker  # noqa: E402
 import numpy as np  # noqa: E402
 
 from gyronet.recordings.data import AXES, block_means  # noqa: E402
@@ -84,3 +85,75 @@ def drift_sigma_band(arrays: Mapping[str, np.ndarray], block_s: float = 60.0, ti
     fig.suptitle(title or f"removed drift's error and its 1-sigma error bar ({block_s:g} s means)")
     fig.tight_layout()
     return fig
+
+
+def survey_figure(results: Sequence[Mapping[str, Any]], ours: str, goals: Mapping[str, float]) -> plt.Figure:
+    """The survey at a glance: every method's worst axis over the sensors, and ``ours``' error bar per sensor-axis.
+
+    Each method's worst axis as deployed, sorted (a quantile curve), ``ours`` also with the truth's turn-on
+    bias: against the goals as a staircase (the 90th percentile, then the worst; a curve under it meets
+    both), and, when some method is far off them, every method on a log scale beside it. When ``ours`` has
+    an error bar: each sensor-axis's share of 60 s blocks within 1 sigma, sorted, with the range a bar
+    that holds gives that run; red where the share is below it.
+    """
+    results = [r for r in results if "error" not in r]
+    curves = {}  # label -> (sorted worst axis, style, colour index)
+    for k, method in enumerate(results[0]["methods"]):
+        curves[method] = (np.sort([max(r["methods"][method]["deployed"]) for r in results]), "-", k)
+        if method == ours:
+            curves[f"{ours}, turn-on bias from the truth"] = (
+                np.sort([max(r["methods"][ours]["turn_on_removed"]) for r in results]), "--", k)
+    near = {label: c for label, c in curves.items() if c[0][-1] <= 3 * goals["worst_max"]}
+    bars = [r["methods"][ours]["error_bar"] for r in results if "error_bar" in r["methods"][ours]]
+    panels = [_survey_curves] * (1 + (len(near) < len(curves))) + [_survey_error_bar] * bool(bars)
+    fig, axes = plt.subplots(1, len(panels), figsize=(5.5 * len(panels), 4.4), squeeze=False)
+    _survey_curves(axes[0, 0], near, goals, len(results))
+    if len(near) < len(curves):
+        _survey_curves(axes[0, 1], curves, None, len(results))
+    if bars:
+        _survey_error_bar(axes[0, -1], bars, ours)
+    fig.tight_layout()
+    return fig
+
+
+def _survey_curves(ax: plt.Axes, curves: Mapping[str, tuple], goals: Mapping[str, float] | None, n: int) -> None:
+    """Quantile curves of the worst axis; with ``goals``, a linear scale and the goals' staircase, else log."""
+    share = 100.0 * np.arange(n + 1) / n  # the k-th sorted value holds from k-1 to k sensors
+    for label, (worst, style, colour) in curves.items():
+        ax.plot(share, np.append(worst, worst[-1]), style, color=f"C{colour}", drawstyle="steps-post", lw=1.5,
+                label=label)
+    if goals is not None:
+        ax.plot([0, 90, 90, 100], [goals["p90_max"], goals["p90_max"], goals["worst_max"], goals["worst_max"]],
+                "k:", lw=1.2, label=f"goals ({goals['p90_max']:g}x at 90 %, {goals['worst_max']:g}x at worst)")
+        ax.set_title(f"{n} sensors, as deployed, against the goals")
+    else:
+        ax.set_yscale("log")
+        ax.yaxis.set_major_formatter(ticker.FormatStrFormatter("%g"))
+        ax.set_title(f"{n} sensors, as deployed, every method")
+    ax.set_xlim(0, 100)
+    ax.set_xlabel("sensors at or below, %")
+    ax.set_ylabel("worst axis, residual / noise floor")
+    ax.grid(alpha=0.3, which="both")
+    ax.legend(loc="best", fontsize=8)
+
+
+def _survey_error_bar(ax: plt.Axes, bars: Sequence[Mapping[str, Any]], ours: str) -> None:
+    """Each sensor-axis's share of blocks within 1 sigma, sorted, with the range a bar that holds gives it."""
+    from gyronet.training.sigma_table import GOAL
+
+    within = np.concatenate([b["within_1_sigma"] for b in bars])
+    ranges = np.concatenate([b.get("calibrated_range", [[np.nan, np.nan]] * 3) for b in bars]).astype(float)
+    order = np.argsort(within)
+    within, ranges = 100.0 * within[order], 100.0 * ranges[order]
+    rank = np.arange(len(within))
+    below = within < ranges[:, 0]
+    ax.axhspan(100 * GOAL[0], 100 * GOAL[1], color="tab:green", alpha=0.15, lw=0, label="goal, pooled")
+    ax.vlines(rank, ranges[:, 0], ranges[:, 1], color="0.75", lw=1, label="a bar that holds, 9 runs in 10")
+    ax.plot(rank[~below], within[~below], ".", color="tab:blue", ms=3, label="share within 1 sigma")
+    ax.plot(rank[below], within[below], ".", color="tab:red", ms=4, label=f"below that range ({below.sum()})")
+    ax.set_ylim(0, 100)
+    ax.set_xlabel("sensor-axes, sorted")
+    ax.set_ylabel("60 s blocks within 1 sigma, %")
+    ax.set_title(f"{ours}'s error bar as deployed: {within.mean():.0f} % pooled")
+    ax.grid(alpha=0.3)
+    ax.legend(loc="lower right", fontsize=8)

@@ -186,7 +186,7 @@ def sensors_csv(results: Sequence[Mapping[str, Any]]) -> str:
 
 def write_outputs(results: Sequence[Mapping[str, Any]], summary: Mapping[str, Any], settings: Mapping[str, Any],
                   output: str | os.PathLike) -> Path:
-    """``output`` (Markdown), and beside it ``.json`` (summary, settings, every sensor) and ``_sensors.csv``."""
+    """``output`` (Markdown), and beside it ``.json`` (summary, settings, every sensor), ``_sensors.csv`` and ``.png``."""
     output = Path(output)
     output.parent.mkdir(parents=True, exist_ok=True)
     with atomic_output(output) as tmp:
@@ -197,4 +197,10 @@ def write_outputs(results: Sequence[Mapping[str, Any]], summary: Mapping[str, An
         tmp.write_text(json.dumps(everything, indent=1, default=str) + "\n")
     with atomic_output(output.with_name(output.stem + "_sensors.csv")) as tmp:
         tmp.write_text(sensors_csv(results))
+    from gyronet.figures.plots import plt, survey_figure
+
+    figure = survey_figure(results, summary["ours"], summary["goals"])
+    with atomic_output(output.with_suffix(".png")) as tmp:
+        figure.savefig(tmp, format="png", dpi=110)
+    plt.close(figure)
     return output
