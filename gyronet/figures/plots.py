@@ -87,14 +87,15 @@ def drift_sigma_band(arrays: Mapping[str, np.ndarray], block_s: float = 60.0, ti
     return fig
 
 
-def survey_figure(results: Sequence[Mapping[str, Any]], ours: str, goals: Mapping[str, float]) -> plt.Figure:
+def survey_figure(results: Sequence[Mapping[str, Any]], ours: str, goals: Mapping[str, float],
+                  sigma_goal: tuple[float, float]) -> plt.Figure:
     """The survey at a glance: every method's worst axis over the sensors, and ``ours``' error bar per sensor-axis.
 
     Each method's worst axis as deployed, sorted (a quantile curve), ``ours`` also with the truth's turn-on
     bias: against the goals as a staircase (the 90th percentile, then the worst; a curve under it meets
     both), and, when some method is far off them, every method on a log scale beside it. When ``ours`` has
     an error bar: each sensor-axis's share of 60 s blocks within 1 sigma, sorted, with the range a bar
-    that holds gives that run; red where the share is below it.
+    that holds gives that run, and ``sigma_goal`` (the pooled share's goal); red where the share is below it.
     """
     results = [r for r in results if "error" not in r]
     curves = {}  # label -> (sorted worst axis, style, colour index)
@@ -111,7 +112,7 @@ def survey_figure(results: Sequence[Mapping[str, Any]], ours: str, goals: Mappin
     if len(near) < len(curves):
         _survey_curves(axes[0, 1], curves, None, len(results))
     if bars:
-        _survey_error_bar(axes[0, -1], bars, ours)
+        _survey_error_bar(axes[0, -1], bars, ours, sigma_goal)
     fig.tight_layout()
     return fig
 
@@ -137,18 +138,16 @@ def _survey_curves(ax: plt.Axes, curves: Mapping[str, tuple], goals: Mapping[str
     ax.legend(loc="best", fontsize=8)
 
 
-def _survey_error_bar(ax: plt.Axes, bars: Sequence[Mapping[str, Any]], ours: str) -> None:
+def _survey_error_bar(ax: plt.Axes, bars: Sequence[Mapping[str, Any]], ours: str, goal: tuple[float, float]) -> None:
     """Each sensor-axis's share of blocks within 1 sigma, sorted, with the range a bar that holds gives it."""
-    from gyronet.training.sigma_table import GOAL
-
     within = np.concatenate([b["within_1_sigma"] for b in bars])
     ranges = np.concatenate([b.get("calibrated_range", [[np.nan, np.nan]] * 3) for b in bars]).astype(float)
     order = np.argsort(within)
     within, ranges = 100.0 * within[order], 100.0 * ranges[order]
     rank = np.arange(len(within))
     below = within < ranges[:, 0]
-    ax.axhspan(100 * GOAL[0], 100 * GOAL[1], color="tab:green", alpha=0.15, lw=0, label="goal, pooled")
-    ax.vlines(rank, ranges[:, 0], ranges[:, 1], color="0.75", lw=1, label="a bar that holds, 9 runs in 10")
+    ax.axhspan(100 * goal[0], 100 * goal[1], color="tab:green", alpha=0.15, lw=0, label="goal, pooled")
+    ax.vlines(rank, ranges[:, 0], ranges[:, 1], color="0.85", lw=0.8, label="a bar that holds, 9 runs in 10")
     ax.plot(rank[~below], within[~below], ".", color="tab:blue", ms=3, label="share within 1 sigma")
     ax.plot(rank[below], within[below], ".", color="tab:red", ms=4, label=f"below that range ({below.sum()})")
     ax.set_ylim(0, 100)

@@ -199,7 +199,7 @@ def write_outputs(results: Sequence[Mapping[str, Any]], summary: Mapping[str, An
         tmp.write_text(sensors_csv(results))
     from gyronet.figures.plots import plt, survey_figure
 
-    figure = survey_figure(results, summary["ours"], summary["goals"])
+    figure = survey_figure(results, summary["ours"], summary["goals"], GOAL)
     with atomic_output(output.with_suffix(".png")) as tmp:
         figure.savefig(tmp, format="png", dpi=110)
     plt.close(figure)
