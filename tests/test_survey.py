@@ -264,7 +264,7 @@ def test_the_survey_figure_draws_each_method_s_sorted_worst_axis_and_the_error_b
     assert bar.get_title() == "gyronet's error bar as deployed: 59 % pooled"
     # near the goals alone: no log panel; no error bar: no bar panel
     for r in results[:2]:
-        r["methods"].pop("PX4-cubic"), r["methods"]["gyronet"].pop("error_bar")
+        del r["methods"]["PX4-cubic"], r["methods"]["gyronet"]["error_bar"]
     assert len(survey_figure(results, "gyronet", {"p90_max": 1.15, "worst_max": 1.3}, (0.6, 0.76)).axes) == 1
 
 

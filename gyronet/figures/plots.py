@@ -106,8 +106,8 @@ def survey_figure(results: Sequence[Mapping[str, Any]], ours: str, goals: Mappin
                 np.sort([max(r["methods"][ours]["turn_on_removed"]) for r in results]), "--", k)
     near = {label: c for label, c in curves.items() if c[0][-1] <= 3 * goals["worst_max"]}
     bars = [r["methods"][ours]["error_bar"] for r in results if "error_bar" in r["methods"][ours]]
-    panels = [_survey_curves] * (1 + (len(near) < len(curves))) + [_survey_error_bar] * bool(bars)
-    fig, axes = plt.subplots(1, len(panels), figsize=(5.5 * len(panels), 4.4), squeeze=False)
+    n_panels = 1 + (len(near) < len(curves)) + bool(bars)
+    fig, axes = plt.subplots(1, n_panels, figsize=(5.5 * n_panels, 4.4), squeeze=False)
     _survey_curves(axes[0, 0], near, goals, len(results))
     if len(near) < len(curves):
         _survey_curves(axes[0, 1], curves, None, len(results))
