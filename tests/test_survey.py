@@ -21,6 +21,7 @@ from gyronet.sim.survey_sensor import SURVEY_RANGES
 from gyronet.analysis.survey import summarize, to_markdown
 from gyronet.figures.plots import survey_figure
 from gyronet.analysis.survey.scoring import turn_on_bias
+from gyronet.analysis.survey.table import error_bar_arrays
 from gyronet.recordings.data import load_truth
 
 from conftest import ROOT
@@ -253,7 +254,8 @@ def test_the_survey_figure_draws_each_method_s_sorted_worst_axis_and_the_error_b
 
     results = [sensor(0, [1.2, 1.1, 1.0], [30, 40, 20], [0.7, 0.2, 0.9], 0.3),
                sensor(1, [1.05, 1.0, 1.08], [25, 10, 5], [0.65, 0.6, 0.5], 0.1), {"sensor_seed": 2, "error": "boom"}]
-    fig = survey_figure(results, "gyronet", {"p90_max": 1.15, "worst_max": 1.3}, (0.6, 0.76))
+    fig = survey_figure(results, "gyronet", {"p90_max": 1.15, "worst_max": 1.3},
+                        error_bar_arrays(results, "gyronet")[1:3], (0.6, 0.76))
     goals, every, bar = fig.axes
     ours, truth_bias, staircase = goals.get_lines()
     assert list(ours.get_ydata()) == [1.08, 1.2, 1.2] and list(truth_bias.get_ydata()) == pytest.approx([1.06, 1.18, 1.18])
@@ -265,7 +267,8 @@ def test_the_survey_figure_draws_each_method_s_sorted_worst_axis_and_the_error_b
     # near the goals alone: no log panel; no error bar: no bar panel
     for r in results[:2]:
         del r["methods"]["PX4-cubic"], r["methods"]["gyronet"]["error_bar"]
-    assert len(survey_figure(results, "gyronet", {"p90_max": 1.15, "worst_max": 1.3}, (0.6, 0.76)).axes) == 1
+    assert error_bar_arrays(results, "gyronet") is None
+    assert len(survey_figure(results, "gyronet", {"p90_max": 1.15, "worst_max": 1.3}, None, (0.6, 0.76)).axes) == 1
 
 
 def test_more_training_histories_train_every_method_as_a_campaign(tmp_path, monkeypatch):

@@ -88,14 +88,15 @@ def drift_sigma_band(arrays: Mapping[str, np.ndarray], block_s: float = 60.0, ti
 
 
 def survey_figure(results: Sequence[Mapping[str, Any]], ours: str, goals: Mapping[str, float],
-                  sigma_goal: tuple[float, float]) -> plt.Figure:
+                  coverage: tuple[np.ndarray, np.ndarray] | None, sigma_goal: tuple[float, float]) -> plt.Figure:
     """The survey at a glance: every method's worst axis over the sensors, and ``ours``' error bar per sensor-axis.
 
     Each method's worst axis as deployed, sorted (a quantile curve), ``ours`` also with the truth's turn-on
     bias: against the goals as a staircase (the 90th percentile, then the worst; a curve under it meets
-    both), and, when some method is far off them, every method on a log scale beside it. When ``ours`` has
-    an error bar: each sensor-axis's share of 60 s blocks within 1 sigma, sorted, with the range a bar
-    that holds gives that run, and ``sigma_goal`` (the pooled share's goal); red where the share is below it.
+    both), and, when some method is far off them, every method on a log scale beside it. With ``coverage``
+    (each sensor-axis's share of 60 s blocks within 1 sigma and the range a bar that holds gives that run,
+    ``gyronet.analysis.survey.table.error_bar_arrays``): the shares sorted against their ranges and
+    ``sigma_goal`` (the pooled share's goal); red where a share is below its range.
     """
     results = [r for r in results if "error" not in r]
     curves = {}  # label -> (sorted worst axis, style, colour index)
@@ -105,14 +106,13 @@ def survey_figure(results: Sequence[Mapping[str, Any]], ours: str, goals: Mappin
             curves[f"{ours}, turn-on bias from the truth"] = (
                 np.sort([max(r["methods"][ours]["turn_on_removed"]) for r in results]), "--", k)
     near = {label: c for label, c in curves.items() if c[0][-1] <= 3 * goals["worst_max"]}
-    bars = [r["methods"][ours]["error_bar"] for r in results if "error_bar" in r["methods"][ours]]
-    n_panels = 1 + (len(near) < len(curves)) + bool(bars)
+    n_panels = 1 + (len(near) < len(curves)) + (coverage is not None)
     fig, axes = plt.subplots(1, n_panels, figsize=(5.5 * n_panels, 4.4), squeeze=False)
     _survey_curves(axes[0, 0], near, goals, len(results))
     if len(near) < len(curves):
         _survey_curves(axes[0, 1], curves, None, len(results))
-    if bars:
-        _survey_error_bar(axes[0, -1], bars, ours, sigma_goal)
+    if coverage is not None:
+        _survey_error_bar(axes[0, -1], *coverage, ours, sigma_goal)
     fig.tight_layout()
     return fig
 
@@ -138,10 +138,9 @@ def _survey_curves(ax: plt.Axes, curves: Mapping[str, tuple], goals: Mapping[str
     ax.legend(loc="best", fontsize=8)
 
 
-def _survey_error_bar(ax: plt.Axes, bars: Sequence[Mapping[str, Any]], ours: str, goal: tuple[float, float]) -> None:
+def _survey_error_bar(ax: plt.Axes, within: np.ndarray, ranges: np.ndarray, ours: str, goal: tuple[float, float]) -> None:
     """Each sensor-axis's share of blocks within 1 sigma, sorted, with the range a bar that holds gives it."""
-    within = np.concatenate([b["within_1_sigma"] for b in bars])
-    ranges = np.concatenate([b.get("calibrated_range", [[np.nan, np.nan]] * 3) for b in bars]).astype(float)
+    within, ranges = within.ravel(), ranges.reshape(-1, 2)
     order = np.argsort(within)
     within, ranges = 100.0 * within[order], 100.0 * ranges[order]
     rank = np.arange(len(within))

@@ -93,19 +93,27 @@ def summarize(results: Sequence[Mapping[str, Any]], ours: str, reference: str | 
             "seconds_per_sensor": float(np.median([r["seconds"] for r in results]))}
 
 
-def error_bar_summary(results: Sequence[Mapping[str, Any]], method: str) -> dict[str, Any] | None:
-    """``method``'s error bar as deployed over the sensors: blocks within 1 sigma (pooled, and the spread over
-    sensor-axes) and the sensors whose recalibration check asks on some axis; None without error bars."""
-    scored = [r for r in results if "error_bar" in r["methods"][method]]
+def error_bar_arrays(results: Sequence[Mapping[str, Any]], method: str) -> tuple | None:
+    """``method``'s error bar per sensor-axis: seeds, within 1 sigma (n, 3), the ranges a bar that holds gives
+    (n, 3, 2; NaN for results made before they were scored) and the worst hour (n, 3); None without error bars."""
+    scored = [r for r in results if "error" not in r and "error_bar" in r["methods"][method]]
     if not scored:
         return None
     bars = [r["methods"][method]["error_bar"] for r in scored]
-    within = np.array([b["within_1_sigma"] for b in bars])
-    hours = np.array([b["worst_hour_rms_ratio"] for b in bars])
-    seeds = [int(r["sensor_seed"]) for r in scored]
     ranges = np.array([b.get("calibrated_range", [[np.nan, np.nan]] * 3) for b in bars], dtype=np.float64)
+    return ([int(r["sensor_seed"]) for r in scored], np.array([b["within_1_sigma"] for b in bars]), ranges,
+            np.array([b["worst_hour_rms_ratio"] for b in bars]))
+
+
+def error_bar_summary(results: Sequence[Mapping[str, Any]], method: str) -> dict[str, Any] | None:
+    """``method``'s error bar as deployed over the sensors: blocks within 1 sigma (pooled, and the spread over
+    sensor-axes) and the sensors whose recalibration check asks on some axis; None without error bars."""
+    arrays = error_bar_arrays(results, method)
+    if arrays is None:
+        return None
+    seeds, within, ranges, hours = arrays
     known = np.isfinite(ranges[..., 0])  # results made before the range was scored have none
-    return {"n_sensors": len(bars), "within_1_sigma_pooled": float(within.mean()),
+    return {"n_sensors": len(seeds), "within_1_sigma_pooled": float(within.mean()),
             "below_calibrated_range": [int((within < ranges[..., 0])[known].sum()), int(known.sum())],
             "within_1_sigma_p10": float(np.percentile(within, 10)), "within_1_sigma_p90": float(np.percentile(within, 90)),
             "in_goal_share": float(np.mean((within >= GOAL[0]) & (within <= GOAL[1]))),
@@ -199,7 +207,8 @@ def write_outputs(results: Sequence[Mapping[str, Any]], summary: Mapping[str, An
         tmp.write_text(sensors_csv(results))
     from gyronet.figures.plots import plt, survey_figure
 
-    figure = survey_figure(results, summary["ours"], summary["goals"], GOAL)
+    arrays = error_bar_arrays(results, summary["ours"])
+    figure = survey_figure(results, summary["ours"], summary["goals"], None if arrays is None else arrays[1:3], GOAL)
     with atomic_output(output.with_suffix(".png")) as tmp:
         figure.savefig(tmp, format="png", dpi=110)
     plt.close(figure)
