@@ -80,7 +80,7 @@ def _grouped(n_inputs: int = 6):
     """A default-like network whose y reads columns 3-5 in its first three slots."""
     rng = np.random.default_rng(0)
     x = torch.from_numpy(np.column_stack([rng.uniform(-20, 50, 800), rng.normal(0, 0.02, (800, n_inputs - 1))]))
-    x[:, 3] = x[:, 0] + rng.normal(0, 0.5, 800)
+    x[:, 3] = x[:, 0] + torch.from_numpy(rng.normal(0, 0.5, 800))
     y = torch.stack([0.01 * x[:, 0], torch.tanh(x[:, 3] / 5.0), x[:, 1]], 1)
     columns = [list(range(n_inputs)), [3, 4, 5, 3, 4, 5], list(range(n_inputs))]
     net = RBFNet(n_inputs, 3, 6, rbf_inputs=[0], linear=True, temp_degree=3, clamp=True, axis_columns=columns)

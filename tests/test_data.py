@@ -117,7 +117,7 @@ def test_compensated_files_keep_twelve_significant_digits(tmp_path):
         for key, value in values.items():
             scale = np.nanmax(np.abs(value))
             np.testing.assert_allclose(back[key].to_numpy(), value, rtol=0, atol=1e-11 * scale)
-        assert open(tmp_path / name).readline().startswith("# compensated_by=")
+        assert (tmp_path / name).read_text().startswith("# compensated_by=")
 
 
 # ------------------------------------------------------------------ hostile files (issue 10)

@@ -151,7 +151,6 @@ def test_compensated_file_reads_back_within_1e12(tmp_path, with_nan):
                "out_of_range": (rng.random(3000) > 0.9).astype(np.int8)}
     if with_nan:
         columns["gyro_x_dps"][5] = np.nan  # the pandas path
-    frame = pd.read_csv(write_compensated(tmp_path / "o.csv", columns, tmp_path), comment="#",
-                        float_precision="round_trip")
+    frame = pd.read_csv(write_compensated(tmp_path / "o.csv", columns, tmp_path), comment="#")
     for key, value in columns.items():
         np.testing.assert_allclose(frame[key].to_numpy(), value, rtol=1e-12, atol=0, equal_nan=True)

@@ -47,10 +47,10 @@ def processes():
 
 
 def start(processes, script: str, *overrides: str, tmp_path: Path, name: str, preexec_fn=None) -> subprocess.Popen:
-    log = open(tmp_path / f"{name}.log", "w")
-    process = subprocess.Popen([sys.executable, f"scripts/{script}", *overrides,
-                                f"hydra.run.dir={tmp_path / name}"], cwd=ROOT, stdout=log, stderr=subprocess.STDOUT,
-                               preexec_fn=preexec_fn)
+    with open(tmp_path / f"{name}.log", "w") as log:  # the child keeps its own copy of the file
+        process = subprocess.Popen([sys.executable, f"scripts/{script}", *overrides,
+                                    f"hydra.run.dir={tmp_path / name}"], cwd=ROOT, stdout=log,
+                                   stderr=subprocess.STDOUT, preexec_fn=preexec_fn)
     processes.append(process)
     return process
 
