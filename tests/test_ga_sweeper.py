@@ -19,7 +19,7 @@ from hydra.core.utils import JobReturn, JobStatus
 from hydra.plugins.sweeper import Sweeper
 from omegaconf import OmegaConf
 
-from hydra_plugins.gyronet_ga_sweeper._impl import score
+from hydra_plugins.gyronet_ga_sweeper._history import score
 from hydra_plugins.gyronet_ga_sweeper._space import parse_search_space, tidy, to_overrides
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -10,7 +10,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from gyronet.bundle.compensator import Compensator, RateChangeError
-from gyronet.recordings.data import GYRO_COLUMNS, Recording, load_recording, write_recording
+from gyronet.recordings.data import GYRO_COLUMNS, Recording, write_recording
 from gyronet.model.features import PAPER_FEATURES, FeatureExtractor
 from gyronet.bundle.offline import compensate_as_deployed
 from gyronet.analysis.rate_table import residual_rms_dps

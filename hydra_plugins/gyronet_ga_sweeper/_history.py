@@ -10,9 +10,11 @@ import math
 import os
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any, Dict, List, Optional
+from typing import Any, Dict, List, Optional, Tuple
 
 import numpy as np
+from hydra.core.utils import JobReturn, JobStatus
+from omegaconf import OmegaConf
 
 HISTORY_FILE = "ga_history.json"
 FORMAT_VERSION = 1
@@ -153,3 +155,29 @@ class History:
         return cls(search_space=doc["search_space"], fixed_overrides=doc["fixed_overrides"],
                    generations=[Generation.from_json(g) for g in doc["generations"]],
                    options=doc.get("options", {}))
+
+
+def score(ret: JobReturn) -> Tuple[float, str, Optional[str]]:
+    """Fitness, status and error text of a finished job (see ``_history.Evaluation``)."""
+    if ret.status != JobStatus.COMPLETED:
+        err = ret._return_value  # the exception; ret.return_value would re-raise it
+        return math.inf, "FAILED", f"{type(err).__name__}: {err}"
+    value = ret.return_value
+    if value is None or isinstance(value, (str, bytes, bool)):
+        return math.inf, "INVALID", f"returned {value!r}, not a number"
+    try:
+        fitness = float(value)
+    except (TypeError, ValueError):
+        return math.inf, "INVALID", f"returned {type(value).__name__} {value!r}, not a number"
+    if not math.isfinite(fitness):
+        return math.inf, "NONFINITE", f"returned {fitness}"
+    return fitness, "COMPLETED", None
+
+
+def job_dir(ret: JobReturn, sweep_dir: Path) -> Optional[str]:
+    """The job's output dir, relative to the sweep dir when inside it."""
+    out = OmegaConf.select(ret.hydra_cfg, "hydra.runtime.output_dir") if ret.hydra_cfg else None
+    if out is None:
+        return None
+    rel = os.path.relpath(out, sweep_dir.resolve())
+    return out if rel.startswith("..") else rel

@@ -9,16 +9,14 @@ from __future__ import annotations
 
 import logging
 import math
-import os
 import shutil
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict
 from pathlib import Path
-from typing import Any, Dict, List, Optional, Tuple
+from typing import Any, Dict, List, Optional
 
 import numpy as np
 from hydra.core.override_parser.overrides_parser import OverridesParser
 from hydra.core.plugins import Plugins
-from hydra.core.utils import JobReturn, JobStatus
 from hydra.errors import HydraException
 from hydra.plugins.sweeper import Sweeper
 from hydra.types import HydraContext, TaskFunction
@@ -27,10 +25,11 @@ from tqdm import tqdm
 
 from gyronet.training.ga import Individual, Param, next_generation, random_individual
 
-from ._history import HISTORY_FILE, Evaluation, Generation, History, params_key
-from ._space import parse_search_space, tidy, to_overrides
+from ._history import HISTORY_FILE, Evaluation, Generation, History, job_dir, params_key, score
+from ._space import describe, parse_search_space, tidy, to_overrides
 from ._tensorboard import SweepWriter
 from ._watchdog import WatchedTask, set_aside_interrupted_jobs
+from .config import GAOptions
 
 log = logging.getLogger(__name__)
 
@@ -39,60 +38,6 @@ RESULTS_FILE = "optimization_results.yaml"
 
 class GASweepError(HydraException):
     """The sweep cannot go on: too many failed jobs, or a history that does not match."""
-
-
-@dataclass(frozen=True)
-class GAOptions:
-    """The GA sweeper's options; see ``config.GASweeperConf`` for what each one means."""
-
-    population_size: int
-    generations: int
-    tournament_size: int
-    crossover_rate: float
-    mutation_rate: float
-    mutation_scale: float
-    elitism: int
-    seed: int
-    max_failure_rate: float
-    start_from_config: bool
-    resume: bool
-    best_artifact: Optional[str]
-    final: Dict[str, str] = field(default_factory=dict)
-
-    def __post_init__(self) -> None:
-        if self.population_size < 1 or self.generations < 0:
-            raise ValueError("population_size must be >= 1 and generations >= 0")
-        if not 0.0 <= self.max_failure_rate <= 1.0:
-            raise ValueError(f"max_failure_rate must be in [0, 1], got {self.max_failure_rate}")
-
-
-# ---------------------------------------------------------------- scoring
-
-
-def score(ret: JobReturn) -> Tuple[float, str, Optional[str]]:
-    """Fitness, status and error text of a finished job (see ``_history.Evaluation``)."""
-    if ret.status != JobStatus.COMPLETED:
-        err = ret._return_value  # the exception; ret.return_value would re-raise it
-        return math.inf, "FAILED", f"{type(err).__name__}: {err}"
-    value = ret.return_value
-    if value is None or isinstance(value, (str, bytes, bool)):
-        return math.inf, "INVALID", f"returned {value!r}, not a number"
-    try:
-        fitness = float(value)
-    except (TypeError, ValueError):
-        return math.inf, "INVALID", f"returned {type(value).__name__} {value!r}, not a number"
-    if not math.isfinite(fitness):
-        return math.inf, "NONFINITE", f"returned {fitness}"
-    return fitness, "COMPLETED", None
-
-
-def job_dir(ret: JobReturn, sweep_dir: Path) -> Optional[str]:
-    """The job's output dir, relative to the sweep dir when inside it."""
-    out = OmegaConf.select(ret.hydra_cfg, "hydra.runtime.output_dir") if ret.hydra_cfg else None
-    if out is None:
-        return None
-    rel = os.path.relpath(out, sweep_dir.resolve())
-    return out if rel.startswith("..") else rel
 
 
 # ---------------------------------------------------------------- the sweeper
@@ -131,7 +76,7 @@ class GASweeperImpl(Sweeper):
         opts = self.options
         log.info("GA sweep: population %d, generations %d, seed %d, into %s", opts.population_size,
                  opts.generations, opts.seed, self.sweep_dir)
-        log.info("search space: %s; fixed: %s", ", ".join(_describe(p) for p in space), fixed)
+        log.info("search space: %s; fixed: %s", ", ".join(describe(p) for p in space), fixed)
         tb = SweepWriter(self.sweep_dir / "tb")
         # the bar shows on a terminal only: in a log file, the line per generation says it all
         bar = tqdm(total=opts.generations, initial=len(history.generations), desc="GA",
@@ -339,9 +284,3 @@ class GASweeperImpl(Sweeper):
             shutil.rmtree(dst)
         shutil.copytree(src, dst)
         log.info("copied %s to %s", src, dst)
-
-
-def _describe(p: Param) -> str:
-    if p.kind == "choice":
-        return f"{p.name} in {list(p.choices)}"
-    return f"{p.name} {p.kind} [{p.low}, {p.high}]"

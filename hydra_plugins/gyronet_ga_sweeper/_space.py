@@ -71,3 +71,10 @@ def format_value(value: Any) -> str:
 def to_overrides(individual: Individual) -> List[str]:
     """``key=value`` overrides for one individual."""
     return [f"{k}={format_value(v)}" for k, v in individual.items()]
+
+
+def describe(p: Param) -> str:
+    """``name in [a, b]`` or ``name float [low, high]``, for the log."""
+    if p.kind == "choice":
+        return f"{p.name} in {list(p.choices)}"
+    return f"{p.name} {p.kind} [{p.low}, {p.high}]"

@@ -75,6 +75,31 @@ class GASweeperConf:
     final: Dict[str, str] = field(default_factory=dict)
 
 
+@dataclass(frozen=True)
+class GAOptions:
+    """The GA sweeper's options; see ``config.GASweeperConf`` for what each one means."""
+
+    population_size: int
+    generations: int
+    tournament_size: int
+    crossover_rate: float
+    mutation_rate: float
+    mutation_scale: float
+    elitism: int
+    seed: int
+    max_failure_rate: float
+    start_from_config: bool
+    resume: bool
+    best_artifact: Optional[str]
+    final: Dict[str, str] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        if self.population_size < 1 or self.generations < 0:
+            raise ValueError("population_size must be >= 1 and generations >= 0")
+        if not 0.0 <= self.max_failure_rate <= 1.0:
+            raise ValueError(f"max_failure_rate must be in [0, 1], got {self.max_failure_rate}")
+
+
 ConfigStore.instance().store(
     group="hydra/sweeper",
     name="ga",

@@ -26,7 +26,8 @@ class GASweeper(Sweeper):
         start_from_config: bool = True,
         final: Optional[DictConfig] = None,
     ) -> None:
-        from ._impl import GAOptions, GASweeperImpl
+        from ._impl import GASweeperImpl
+        from .config import GAOptions
 
         options = GAOptions(
             population_size=population_size,
