@@ -2,7 +2,7 @@
 
 The registry and helpers are in :mod:`.harness`; ``probe.py`` is a script the ``stream_pty`` row runs.
 """
-from . import reference, training, offline, live, live_csv  # noqa: F401  (registration order = default run order)
+from . import reference, training, offline, live, memory, live_csv  # noqa: F401  (registration order = default run order)
 from . import c_export  # noqa: F401  (the C99 compensator, format=c)
 from .harness import BENCHES, LONG, Context
 
