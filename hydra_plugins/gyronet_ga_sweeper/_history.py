@@ -1,4 +1,4 @@
-"""The sweep's record, ``<sweep dir>/ga_history.json``: every generation, every individual.
+"""The sweep's record, ``<sweep dir>/ga_history.json``: every generation, every individual, and what a job scores.
 
 It is rewritten after each generation, so an interrupted sweep can resume from its last
 complete generation. Non-finite numbers are stored as ``null`` (JSON has no inf or NaN).
@@ -158,7 +158,7 @@ class History:
 
 
 def score(ret: JobReturn) -> Tuple[float, str, Optional[str]]:
-    """Fitness, status and error text of a finished job (see ``_history.Evaluation``)."""
+    """Fitness, status and error text of a finished job (see ``Evaluation``)."""
     if ret.status != JobStatus.COMPLETED:
         err = ret._return_value  # the exception; ret.return_value would re-raise it
         return math.inf, "FAILED", f"{type(err).__name__}: {err}"

@@ -77,7 +77,7 @@ class GASweeperConf:
 
 @dataclass(frozen=True)
 class GAOptions:
-    """The GA sweeper's options; see ``config.GASweeperConf`` for what each one means."""
+    """The GA sweeper's options, checked; see ``GASweeperConf`` for what each one means."""
 
     population_size: int
     generations: int
