@@ -31,7 +31,7 @@ STREAM_CPU, EMULATOR_CPU = 1, 0
 PROBE = Path(__file__).with_name("probe.py")
 
 
-def _recording_1khz(ctx: Context, n: int) -> Path:
+def recording_1khz(ctx: Context, n: int) -> Path:
     """A constant-temperature (25 degC) recording at 1 kHz, ``n`` samples, written once."""
     from gyronet.sim import simulate, write_simulation
 
@@ -49,7 +49,7 @@ def _pinned(cpu: int):
     return (lambda: os.sched_setaffinity(0, {cpu})) if cpu in cpus and len(cpus) > 1 else None
 
 
-def _run_pair(ctx: Context, name: str, recording: Path, bundle: Path, protocol: str, speed: float,
+def run_pair(ctx: Context, name: str, recording: Path, bundle: Path, protocol: str, speed: float,
               n: int, per_sample: bool = False, stream_options: tuple[str, ...] = (),
               probe_mode: str | None = None) -> dict[str, Any]:
     """Emulator and stream under the probe (``per_sample``: one sample a chunk; ``stream_options``: more overrides of
@@ -148,7 +148,7 @@ def _per_sample_us(bundle: Path, recording: Path, n: int = 3000, warm_up: int = 
     return us
 
 
-def _rss_figures(rss: np.ndarray) -> dict[str, float]:
+def rss_figures(rss: np.ndarray) -> dict[str, float]:
     """RSS at the first row and at the end, and the growth of the second half extrapolated to one hour."""
     rows, rss_mb = rss[1:, 0], rss[1:, 2]  # rss[0]: before the bundle was loaded
     later = rows >= rows[-1] / 2  # past start-up: first allocations, the allocator's first Allan reports
@@ -187,26 +187,26 @@ def stream_pty(ctx: Context) -> dict[str, Any]:
     """emulate_sensor.py -> pty -> stream.py, chunked vs per sample: samples/s flooded (goal >= 50,000/s), p99 latency at 1 kHz (< 0.5 ms), RSS."""
     n_flood, n_paced, n_busy = ctx.size(120_000, 3_000), ctx.size(300_000, 3_000), ctx.size(60_000, 3_000)
     bundles = {model: trained_bundle(ctx, model) for model in ("default", "poly3")}
-    flood, paced_recording = _recording_1khz(ctx, n_flood), _recording_1khz(ctx, n_paced)
-    runs = {"lpbus": _run_pair(ctx, "lpbus", flood, bundles["default"], "lpbus", 0, n_flood),
-            "lpbus_per_sample": _run_pair(ctx, "lpbus_per_sample", flood, bundles["default"], "lpbus", 0, n_flood,
+    flood, paced_recording = recording_1khz(ctx, n_flood), recording_1khz(ctx, n_paced)
+    runs = {"lpbus": run_pair(ctx, "lpbus", flood, bundles["default"], "lpbus", 0, n_flood),
+            "lpbus_per_sample": run_pair(ctx, "lpbus_per_sample", flood, bundles["default"], "lpbus", 0, n_flood,
                                           per_sample=True),
-            "lpbus_poly3": _run_pair(ctx, "lpbus_poly3", flood, bundles["poly3"], "lpbus", 0, n_flood),
-            "csv": _run_pair(ctx, "csv", flood, bundles["default"], "csv", 0, n_flood),
-            "paced": _run_pair(ctx, "paced", paced_recording, bundles["default"], "lpbus", 1, n_paced),
-            "paced_per_sample": _run_pair(ctx, "paced_per_sample", paced_recording, bundles["default"], "lpbus", 1,
+            "lpbus_poly3": run_pair(ctx, "lpbus_poly3", flood, bundles["poly3"], "lpbus", 0, n_flood),
+            "csv": run_pair(ctx, "csv", flood, bundles["default"], "csv", 0, n_flood),
+            "paced": run_pair(ctx, "paced", paced_recording, bundles["default"], "lpbus", 1, n_paced),
+            "paced_per_sample": run_pair(ctx, "paced_per_sample", paced_recording, bundles["default"], "lpbus", 1,
                                           n_paced, per_sample=True)}
     paced = ["paced", "paced_per_sample"]
     if _realtime_allowed():  # the same loop with a busy process on each core, at the normal and a real-time priority
-        busy_recording = _recording_1khz(ctx, n_busy)
+        busy_recording = recording_1khz(ctx, n_busy)
         with _busy_cores():
             for name, options in (("busy", ()), ("busy_realtime", ("realtime_priority=50",))):
-                runs[name] = _run_pair(ctx, name, busy_recording, bundles["default"], "lpbus", 1, n_busy,
+                runs[name] = run_pair(ctx, name, busy_recording, bundles["default"], "lpbus", 1, n_busy,
                                        stream_options=options)
                 paced.append(name)
     rate = {k: r["n"] / r["elapsed_s"] for k, r in runs.items()}
     latency = {k: percentiles_ms(runs[k]["sent_to_write_s"]) for k in paced}
-    memory = {k: _rss_figures(runs[k]["rss"]) for k in paced}
+    memory = {k: rss_figures(runs[k]["rss"]) for k in paced}
     stage_us = {k: {stage: 1e6 * v / r["n"] for stage, v in r["stage_s"].items()} for k, r in runs.items()}
     rows_per_write = {k: float(np.mean(r["chunk_rows"])) for k, r in runs.items()}
     cpu_us = {k: 1e6 * r["cpu_s"] / r["n"] for k, r in runs.items()}  # CPU per sample: what the load does not change

@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 
 from .harness import Context, bench, row, trained_bundle
-from .live import _recording_1khz, _run_pair
+from .live import recording_1khz, run_pair
 
 CSV_GOAL_IDLE_PER_S = 100_000.0  # issue 24 item 3
 CSV_GOAL_LOADED_PER_S = 30_000.0
@@ -51,12 +51,12 @@ def stream_csv_flood(ctx: Context) -> dict[str, Any]:
     """CSV lines vs LP-BUS frames flooded through a pty into stream.py, in turns: samples/s (goal CSV >= 100,000/s idle, >= 30,000/s loaded)."""
     n, n_rounds = ctx.size(120_000, 3_000), ctx.size(2, 1)
     bundle = trained_bundle(ctx, "default")
-    recording = _recording_1khz(ctx, n)
+    recording = recording_1khz(ctx, n)
     rounds: list[dict[str, dict[str, float]]] = []
     for i in range(n_rounds):
         figures = {}
         for name, (protocol, mode) in RUNS.items():
-            run = _run_pair(ctx, f"csv_flood_{name}_{i}", recording, bundle, protocol, 0, n, probe_mode=mode)
+            run = run_pair(ctx, f"csv_flood_{name}_{i}", recording, bundle, protocol, 0, n, probe_mode=mode)
             figures[name] = {"samples_per_s": n / run["elapsed_s"], "elapsed_s": run["elapsed_s"],
                              "cpu_us": 1e6 * run["cpu_s"] / n, "parse_us": 1e6 * run["stage_s"]["parse"] / n,
                              "rows_per_write": float(np.mean(run["chunk_rows"]))}

@@ -9,15 +9,15 @@ import sys
 from typing import Any
 
 from .harness import ROOT, Context, bench, row, trained_bundle
-from .live import FS_HZ, RSS_GOAL_MB_PER_H, _recording_1khz, _rss_figures, _run_pair
+from .live import FS_HZ, RSS_GOAL_MB_PER_H, recording_1khz, rss_figures, run_pair
 
 
 @bench("stream_rss_hour")
 def stream_rss_hour(ctx: Context) -> dict[str, Any]:
     """RSS of stream.py against samples over one hour of 1 kHz data, flooded through the pty (goal: flat, < 10 MB/h)."""
     n = ctx.size(int(3600 * FS_HZ), 30_000)
-    run = _run_pair(ctx, "rss_hour", _recording_1khz(ctx, n), trained_bundle(ctx, "default"), "lpbus", 0, n)
-    memory = _rss_figures(run["rss"])
+    run = run_pair(ctx, "rss_hour", recording_1khz(ctx, n), trained_bundle(ctx, "default"), "lpbus", 0, n)
+    memory = rss_figures(run["rss"])
     rss_mb = run["rss"][1:, 2]
     hours = n / FS_HZ / 3600.0
     notes = (f"{n} samples ({hours:g} h of 1 kHz data) flooded in {run['elapsed_s']:.0f} s, default bundle: RSS "
