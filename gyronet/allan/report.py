@@ -138,9 +138,11 @@ def format_table(report: Mapping) -> str:
 
 
 def num(value) -> str:
+    """A report's figure as 4 significant digits, or n/a where there is none."""
     return "n/a" if value is None or not math.isfinite(value) else f"{value:.4g}"
 
 
 def axes_of(report: Mapping) -> list[str]:
+    """The report's axes: the entries that carry an Allan curve."""
     return [k for k, v in report.items() if isinstance(v, Mapping) and "taus_s" in v]
 

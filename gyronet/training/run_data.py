@@ -112,6 +112,7 @@ class RunBlocks(Blocks):
 
 
 def stack_runs(runs: Sequence[Run], block_s: float) -> RunBlocks:
+    """Every run's blocks of ``block_s`` s, in run order, each labelled with its run's position."""
     parts = [r.blocks(block_s) for r in runs]
     return RunBlocks(np.concatenate([b.x for b in parts]), np.concatenate([b.y for b in parts]),
                      np.concatenate([b.time_s for b in parts]),

@@ -13,6 +13,8 @@ defaults: List[Any] = ["_self_", {"optional params": "default"}, {"optional fina
 
 @dataclass
 class GASweeperConf:
+    """The GA sweeper's options (``hydra.sweeper.*``): what each field does is said above it."""
+
     _target_: str = "hydra_plugins.gyronet_ga_sweeper.ga_sweeper.GASweeper"
     defaults: List[Any] = field(default_factory=lambda: list(defaults))
 

@@ -25,6 +25,7 @@ class Spectrum:
 
 
 def banded_periodogram(x: np.ndarray, exact_bins: int, band_ratio: float) -> Spectrum:
+    """The periodogram of ``x``, exact in its first ``exact_bins`` bins, then averaged in bands: fits cost bands."""
     n = len(x)
     k_max = (n - 1) // 2  # Fourier frequencies strictly between 0 and pi
     # I(omega_k) = |sum_t x_t exp(-i omega_k t)|^2 / n, E I = f(omega_k)
@@ -64,6 +65,7 @@ def _density(spec: Spectrum, a: np.ndarray, q: float, r: float) -> tuple[np.ndar
 
 
 def fit_order(spec: Spectrum, p: int, r0: float, var0: float, previous) -> optimize.OptimizeResult:
+    """The AR(``p``) + white noise that minimises the Whittle likelihood, started also from order p - 1's optimum."""
     def neg_log_likelihood(theta: np.ndarray) -> float:
         a, q, r = unpack(theta, p)
         f, _ = _density(spec, a, q, r)
