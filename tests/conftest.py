@@ -65,3 +65,22 @@ def toy_kalman_dict() -> dict:
 
     axis = AxisModel(ar=(0.999,), ar_se=(1e-4,), q_drift_dps2=1e-8, r_dps2=1e-2)
     return KalmanStage(KalmanModel(fs_hz=2.0, axes=(axis,) * 3)).to_dict()
+
+
+@pytest.fixture
+def torch_jit_warns(monkeypatch):
+    """``torch.jit``'s script, save, load and freeze warn as torch 2.14's do (a FutureWarning, shown to users)."""
+    import warnings
+
+    import torch
+
+    def warning(name):
+        real = getattr(torch.jit, name)
+
+        def warned(*args, **kwargs):
+            warnings.warn(f"`torch.jit.{name}` is deprecated. Please switch to `torch.export`.", FutureWarning)
+            return real(*args, **kwargs)
+        return warned
+
+    for name in ("script", "save", "load", "freeze"):
+        monkeypatch.setattr(torch.jit, name, warning(name))

@@ -5,6 +5,7 @@ import logging
 import shutil
 import subprocess
 import sys
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -301,3 +302,16 @@ def test_compensate_refuses_damaged_bundle_in_one_line(bundle, cycle_csv, tmp_pa
     assert proc.returncode == 2 and "Traceback" not in proc.stderr
     assert proc.stderr.startswith("error: ") and proc.stderr.strip().count("\n") == 0
     assert "model.pt: checksum differs" in proc.stderr and not out.exists()
+
+
+def test_torch_deprecating_torchscript_adds_nothing_to_stderr(torch_jit_warns, bundle, columns, tmp_path):
+    """Every command loads or saves a bundle: torch 2.14's two lines a call would bury its one-line error."""
+    from gyronet.bundle.io import load_unfrozen
+
+    with pytest.warns(FutureWarning, match="torch.jit.script"):  # the stand-in warns as torch 2.14 does
+        torch.jit.script(TempPolynomial(3))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        save_bundle(TempPolynomial(3), {}, tmp_path / "poly")
+        load_unfrozen(tmp_path / "poly")
+        assert np.isfinite(Compensator.load(bundle).process(columns).rate_dps).all()

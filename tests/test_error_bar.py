@@ -3,6 +3,7 @@ import copy
 import logging
 import json
 import math
+import warnings
 
 import numpy as np
 import pytest
@@ -66,6 +67,14 @@ def test_sigma_rows_in_floats_equal_the_batch_and_survive_meta_json():
     again = ErrorBar.from_dict(json.loads(json.dumps(bar.to_dict())), 3, "meta.json")
     np.testing.assert_allclose(again.sigma(x), batch, rtol=1e-12, atol=0)
     assert np.all(batch >= bar.floor_dps) and np.all(np.isfinite(batch))
+
+
+def test_the_members_network_scripts_without_torchs_deprecation_warning(torch_jit_warns):
+    """The bar scripts its members on first use, inside every command that compensates."""
+    x = torch.randn(20, 3, dtype=torch.float64) + 20.0
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert np.isfinite(_bar(_members()).member_drift(x.numpy())).all()
 
 
 def test_sigma_grows_outside_the_box_and_with_the_spread():

@@ -1,4 +1,4 @@
-"""The compensator bundle (CONTRACT.md section 2): the only module that touches ``torch.jit``.
+"""The compensator bundle (CONTRACT.md section 2): the only module that reads or writes TorchScript files.
 
 A bundle is a folder: ``model.pt`` (TorchScript: features in, drift per axis out, deg/s),
 ``meta.json`` (what the features are and what the model saw) and, when the Kalman stage is on,
@@ -20,6 +20,7 @@ from gyronet.atomic import atomic_output
 from gyronet.bundle.schema import (gyronet_version, BUNDLE_FORMAT, KALMAN_FILE, META_FILE, MODEL_FILE, TRAINED_FILE, ModelFacts,
                                    check_trained, trained_json)
 from gyronet.errors import BundleError
+from gyronet.model.torchscript import quiet_torchscript
 
 log = logging.getLogger(__name__)
 
@@ -46,12 +47,11 @@ def save_bundle(model: torch.nn.Module, meta: Mapping[str, Any], out_dir: str | 
     """
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    model = model.eval()
-    scripted = torch.jit.script(model)
     full_meta = {"format": BUNDLE_FORMAT, "gyronet_version": gyronet_version(), **meta,
                  "kalman": kalman is not None}
     buffer = io.BytesIO()  # saved by name, the archive's folder would be the temporary file's random name
-    torch.jit.save(scripted, buffer, _extra_files={TRAINED_FILE: trained_json(full_meta)})
+    with quiet_torchscript():
+        torch.jit.save(torch.jit.script(model.eval()), buffer, _extra_files={TRAINED_FILE: trained_json(full_meta)})
     with atomic_output(out_dir / MODEL_FILE) as tmp:
         tmp.write_bytes(buffer.getvalue())
     sums = {MODEL_FILE: sha256_file(out_dir / MODEL_FILE)}
@@ -82,7 +82,8 @@ class LoadedBundle(NamedTuple):
 def load_unfrozen(bundle_dir: str | Path) -> torch.jit.ScriptModule:
     """The bundle's TorchScript model with its buffers and parameters, for code generators (no checks:
     call after :func:`read_bundle`, whose frozen model has folded them into constants)."""
-    return torch.jit.load(str(Path(bundle_dir) / MODEL_FILE), map_location="cpu")
+    with quiet_torchscript():
+        return torch.jit.load(str(Path(bundle_dir) / MODEL_FILE), map_location="cpu")
 
 
 def load_bundle(bundle_dir: str | Path) -> tuple[torch.jit.ScriptModule, dict[str, Any], dict[str, Any] | None]:
@@ -156,11 +157,12 @@ def _load_model(path: Path) -> tuple[torch.jit.ScriptModule, ModelFacts, dict[st
     """TorchScript load, what the model says about itself, then freeze."""
     extra = {TRAINED_FILE: ""}
     try:
-        loaded = torch.jit.load(str(path), map_location="cpu", _extra_files=extra).eval()
-        facts = ModelFacts(str(loaded.original_name), _int_attr(loaded, "n_inputs", "x_mean"),
-                           _int_attr(loaded, "temp_index") if not hasattr(loaded, "x_mean") else None)
-        # frozen: parameters become constants, which trims the per-call overhead of a live sample
-        model = torch.jit.freeze(loaded)
+        with quiet_torchscript():
+            loaded = torch.jit.load(str(path), map_location="cpu", _extra_files=extra).eval()
+            facts = ModelFacts(str(loaded.original_name), _int_attr(loaded, "n_inputs", "x_mean"),
+                               _int_attr(loaded, "temp_index") if not hasattr(loaded, "x_mean") else None)
+            # frozen: parameters become constants, which trims the per-call overhead of a live sample
+            model = torch.jit.freeze(loaded)
     except Exception as err:  # noqa: BLE001 - torch raises RuntimeError, ValueError, ... on a bad file
         first = str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
         raise BundleError(f"{path}: not a readable TorchScript model ({first[:160]})") from None

@@ -29,6 +29,7 @@ import numpy as np
 import torch
 
 from gyronet.errors import BundleError
+from gyronet.model.torchscript import quiet_torchscript
 
 log = logging.getLogger(__name__)
 
@@ -92,7 +93,8 @@ class ErrorBar:
         if self._scripted is None:
             import copy
 
-            self._scripted = torch.jit.freeze(torch.jit.script(copy.deepcopy(self.members)))
+            with quiet_torchscript():
+                self._scripted = torch.jit.freeze(torch.jit.script(copy.deepcopy(self.members)))
         features = np.ascontiguousarray(features, dtype=np.float64)
         x = torch.from_numpy(features if features.flags.writeable else features.copy())  # torch reads, but warns
         with torch.no_grad():
