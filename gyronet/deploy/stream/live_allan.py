@@ -21,6 +21,7 @@ import numpy as np
 
 from gyronet.recordings.data import AXES
 from gyronet.errors import GyronetError
+from gyronet.deploy.stream.allocator import trim_heap
 from gyronet.deploy.stream.priority import normal_thread
 
 log = logging.getLogger(__name__)
@@ -200,7 +201,12 @@ class LiveAllan:
         return self._start_s + (full + 0.5) * self.bin_s, filled, int(len(full) - len(index))
 
     def _due(self, step: int) -> None:
-        """A report fell due: now, or in the worker on the history as it is now (views: it is only appended to)."""
+        """A report fell due: now, or in the worker on the history as it is now (views: it is only appended to).
+
+        First the heap's free pages go back to the system: the last report's temporaries and the history's
+        doublings leave them in the middle of the heap, where glibc keeps them (:mod:`.allocator`).
+        """
+        trim_heap()
         if not self.background:
             self.report(step)
             return
