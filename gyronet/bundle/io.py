@@ -3,7 +3,8 @@
 A bundle is a folder: ``model.pt`` (TorchScript: features in, drift per axis out, deg/s),
 ``meta.json`` (what the features are and what the model saw) and, when the Kalman stage is on,
 ``kalman.json``. Loading needs neither the training code nor Hydra. TorchScript is deprecated in
-favour of ``torch.export``; keeping all of it here means switching changes one file.
+favour of ``torch.export``; with the files read and written here alone, switching the format changes
+this file (the error bar also scripts its members in memory, for speed: ``gyronet.model.error_bar``).
 """
 from __future__ import annotations
 
