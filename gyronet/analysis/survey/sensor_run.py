@@ -246,17 +246,14 @@ def _simulate_train_score(sensor_seed: int, spec: SurveySpec, folder: Path, fing
 def _forget_records() -> None:
     """Drop this sensor's recordings and features from the per-process caches and return freed memory: a
     long-lived worker otherwise grows by about 0.6 GB a sensor (a 100-sensor run was killed for memory twice)."""
-    import ctypes
     import gc
 
+    from gyronet.deploy.stream.allocator import trim_heap
     from gyronet.training import dataset
 
     dataset.clear_caches()
     gc.collect()
-    try:  # glibc keeps freed heap pages: give them back (elsewhere there is nothing to do)
-        ctypes.CDLL("libc.so.6").malloc_trim(0)
-    except (OSError, AttributeError):
-        pass
+    trim_heap()  # glibc keeps freed heap pages: give them back (elsewhere there is nothing to do)
 
 
 def _folder_name(method: str) -> str:
