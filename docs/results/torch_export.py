@@ -14,13 +14,12 @@ import warnings
 
 import torch
 
-from gyronet.bundle.io import load_unfrozen, read_bundle
+from gyronet.bundle.io import LoadedBundle, load_unfrozen, read_bundle
 from gyronet.model.rbf import RBFNet
 
 
-def eager_model(bundle: str) -> RBFNet:
-    """The bundle's RBFNet in eager PyTorch, with ``model.pt``'s parameters and buffers."""
-    loaded = read_bundle(bundle)
+def eager_model(bundle: str, loaded: LoadedBundle) -> RBFNet:
+    """The bundle's RBFNet in eager PyTorch, with ``model.pt``'s parameters and buffers (``loaded``: it, read)."""
     config = loaded.meta["model"]
     if config["class"] != "RBFNet":
         sys.exit(f"error: {bundle} holds a {config['class']}, this probe rebuilds an RBFNet only")
@@ -41,7 +40,8 @@ def us_per_call(model, x: torch.Tensor, calls: int) -> float:
 
 def main(bundle: str) -> None:
     warnings.simplefilter("ignore")  # torch's deprecation of torch.jit, which this file compares against
-    scripted, model = read_bundle(bundle).model, eager_model(bundle)
+    loaded = read_bundle(bundle)
+    scripted, model = loaded.model, eager_model(bundle, loaded)
     box = model.x_mean + model.x_std * torch.randn(8192, len(model.x_mean), dtype=torch.float64)
     exported = torch.export.export(model, (box,), dynamic_shapes=({0: torch.export.Dim("rows")},))
     exported_file, script_file = io.BytesIO(), io.BytesIO()
