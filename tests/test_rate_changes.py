@@ -65,14 +65,33 @@ def test_a_block_one_sample_at_a_time_and_any_chunking_find_the_same_changes(siz
 
 
 @pytest.mark.parametrize("factor", [0.5, 0.7, 1.5, 2.0, 4.0])
-def test_a_rate_change_is_found_soon_after_it_at_the_right_rate(factor):
+def test_a_rate_change_is_found_soon_after_it_at_the_right_rate_and_refined_span_rows_later(factor):
     changes = RateWatch(10.0).scan(_two_rates(factor=factor, jitter=0.3))
-    assert len(changes) == 1, changes
-    change = changes[0]
+    assert [c.refined for c in changes] == [False, True], changes
+    change, refined = changes
     assert 2999 <= change.since_row <= 3000 + SPAN and change.row <= 3000 + SPAN + VOTES
     if factor * FAST_FACTOR * (1.0 - 0.3) > 1.0:  # every jittered interval under half the old period: at once
         assert change.row <= 3000 + 2 * FAST
-    assert change.new_hz == pytest.approx(10.0 * factor, rel=0.02)
+    assert change.new_hz == pytest.approx(10.0 * factor, rel=0.08)
+    assert refined.row == change.row + SPAN and refined.old_hz == change.new_hz
+    assert refined.new_hz == pytest.approx(10.0 * factor, rel=0.02)
+
+
+@pytest.mark.parametrize("factor", [0.5, 2.0, 4.0])
+def test_the_refined_period_misses_by_no_more_than_the_stamp_jitter_over_span_intervals(factor):
+    """Stamps off by up to j either way: SPAN intervals telescope to the period within 2 j / SPAN (0.6 / 8 before
+    the refinement, when a rate twice as fast is adopted after FAST intervals)."""
+    period_s, jitter_s = 0.1 / factor, 0.3 * 0.1 / max(factor, 1.0)
+    for seed in range(40):
+        changes = RateWatch(10.0).scan(_two_rates(factor=factor, jitter=0.3, seed=seed))
+        assert changes[-1].refined, changes
+        assert abs(1.0 / changes[-1].new_hz - period_s) <= 2 * jitter_s / SPAN + 1e-12, (seed, changes)
+
+
+def test_a_sample_lost_soon_after_a_change_leaves_the_period_as_first_estimated():
+    time_s = np.delete(_two_rates(factor=4.0, jitter=0.1), 3020)  # after the change is found (row 3008), before SPAN
+    changes = RateWatch(10.0).scan(time_s)
+    assert len(changes) == 1 and changes[0].new_hz == pytest.approx(40.0, rel=0.04), changes
 
 
 @pytest.mark.parametrize("damage", ["stamp jitter 30 %", "loss 20 % and bursts", "drift 1 %", "200 ppm", "5 % slow"])
@@ -101,7 +120,7 @@ def test_the_extractor_follows_a_rate_change_exactly_like_one_sample_at_a_time()
     columns = {"time_s": time_s, "temp_c": temp_c}
     batch = FeatureExtractor(PAPER_FEATURES, 10.0)
     whole = batch.process(columns)
-    assert len(batch.rate_changes) == 1 and batch.dt_s == pytest.approx(0.05, rel=0.02)
+    assert [c.refined for c in batch.rate_changes] == [False, True] and batch.dt_s == pytest.approx(0.05, rel=0.02)
     live = FeatureExtractor(PAPER_FEATURES, 10.0)
     rows = np.array([live.process_row(t, {"temp_c": c})[0] for t, c in zip(time_s.tolist(), temp_c.tolist())])
     np.testing.assert_allclose(rows, whole, rtol=0, atol=1e-9)

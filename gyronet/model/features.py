@@ -154,8 +154,8 @@ class FeatureExtractor:
         """Run the filters at the new period from this row on (``on_rate_change`` may refuse: raise)."""
         if self.on_rate_change is not None:
             self.on_rate_change(change)
-        log.info("the sampling rate changes from %.6g to %.6g Hz at time_s=%.6f: the feature filters follow",
-                 change.old_hz, change.new_hz, change.time_s)
+        log.info("the sampling rate %s from %.6g to %.6g Hz at time_s=%.6f: the feature filters follow",
+                 "estimate is refined" if change.refined else "changes", change.old_hz, change.new_hz, change.time_s)
         self.rate_changes.append(change)
         self.dt_s = 1.0 / change.new_hz
         rebuilt: dict[int, Any] = {}  # id(old) -> new, so a shared tracker stays shared

@@ -10,11 +10,14 @@ declared where more than half of the last ``VOTES`` such spans lie more than ``T
 the same side. A span votes only when its median interval (more than half of its intervals) is
 off on that side too: lost samples lengthen the mean but not the median, stamp jitter moves the
 median but not the mean, and a real rate change moves both. The new period is the mean interval since the first vote for it, or
-exactly the nominal one when within the tolerance of it.
+exactly the nominal one when within the tolerance of it; ``SPAN`` rows later, unless snapped, it is
+refined to the mean interval of those rows (a rate twice as fast is adopted after 8 intervals, whose
+mean under +-25 % stamp jitter can miss the period by 6 %, inside the tolerance, so no vote corrects it).
 
 The same votes are computed for a block (numpy) and one sample (plain floats, the live path), in
 the same float64 operations, so a recording and a stream chunked any way find the same changes at
-the same rows (the C compensator repeats them in double).
+the same rows. The C compensator repeats them in double, but for the refinement: it cannot follow a
+rate, so it flags the first change off the bundle's rate for good.
 """
 from __future__ import annotations
 
@@ -33,11 +36,16 @@ TOLERANCE = 0.05  # a span this far off (relative) votes for a change; the bundl
 # makes an interval shorter, and jitter of +-30 % cannot make FAST of them in a row that short)
 FAST = 8
 FAST_FACTOR = 0.5
+REFINED = 1e-6  # a refined period this close to the adopted one is no change
+# an interval this many adopted periods long is a lost sample: stamp jitter of +-30 % makes an interval at
+# most 1.6 periods, and an 8-interval estimate misses the period by at most 7.5 %: 1.6 / 0.925 = 1.73
+LOST = 1.75
 
 
 class RateChange(NamedTuple):
     """A rate change found at ``row`` (counted from the reset, 0-based); it began at most ``SPAN``
-    rows before ``since_row``, the first row that voted for it."""
+    rows before ``since_row``, the first row that voted for it. ``refined``: the last change's period,
+    estimated again from the ``SPAN`` rows since it."""
 
     row: int
     time_s: float
@@ -45,6 +53,7 @@ class RateChange(NamedTuple):
     new_hz: float
     since_row: int
     since_time_s: float
+    refined: bool = False
 
 
 class RateWatch:
@@ -73,6 +82,7 @@ class RateWatch:
         self._times: deque[float] = deque(maxlen=SPAN + 1)
         self._votes: deque[int] = deque(maxlen=VOTES)  # +1 slow, -1 fast, 0 in tolerance or no vote
         self._vote_times: deque[float] = deque(maxlen=VOTES)  # the stamp of each voting row
+        self._refine = False  # the period adopted at the last change is an estimate: refine it at SPAN rows
 
     def _vote(self, intervals_s: list[float], total_s: float) -> int:
         """+1 (slower), -1 (faster) or 0 for one span: its mean and its median both off on that side."""
@@ -95,11 +105,14 @@ class RateWatch:
         new_s = (times[-1] - times[first]) / (len(times) - 1 - first)
         return self._change(row, time_s, new_s, row - (len(times) - 1 - first), times[first])
 
-    def _change(self, row: int, time_s: float, new_s: float, since_row: int, since_time_s: float) -> RateChange:
+    def _change(self, row: int, time_s: float, new_s: float, since_row: int, since_time_s: float,
+                refined: bool = False) -> RateChange:
         """Adopt the period ``new_s`` (the snap one if within the tolerance of it) from ``row`` on."""
-        if abs(new_s / self.snap_s - 1.0) <= TOLERANCE:
+        snapped = abs(new_s / self.snap_s - 1.0) <= TOLERANCE
+        if snapped:
             new_s = self.snap_s
-        change = RateChange(row, time_s, 1.0 / self.period_s, 1.0 / new_s, since_row, since_time_s)
+        self._refine = not (refined or snapped)
+        change = RateChange(row, time_s, 1.0 / self.period_s, 1.0 / new_s, since_row, since_time_s, refined)
         self.period_s = new_s
         self._since = 0
         self._votes.clear()
@@ -113,7 +126,9 @@ class RateWatch:
         self._times.append(time_s)
         self._since += 1
         change = None
-        if self._since > SPAN:
+        if self._refine and self._since == SPAN:
+            change = self._refined(row, time_s)
+        elif self._since > SPAN:
             times = list(self._times)
             self._votes.append(self._vote([b - a for a, b in zip(times, times[1:])], times[-1] - times[0]))
             self._vote_times.append(time_s)
@@ -123,6 +138,17 @@ class RateWatch:
             if all(b - a < FAST_FACTOR * self.period_s for a, b in zip(times, times[1:])):
                 change = self._change(row, time_s, (times[-1] - times[0]) / FAST, row - FAST, times[0])
         return change
+
+    def _refined(self, row: int, time_s: float) -> RateChange | None:
+        """SPAN rows after a change: the mean interval they show (the change's own estimate had 8-32 intervals;
+        stamp jitter of +-30 % is at most 0.6 / SPAN = 1.9 % here), unless a sample was lost among them."""
+        self._refine = False
+        times = list(self._times)
+        new_s = (times[-1] - times[0]) / SPAN
+        lost = any(b - a > LOST * self.period_s for a, b in zip(times, times[1:]))
+        if lost or abs(new_s / self.period_s - 1.0) < REFINED:
+            return None
+        return self._change(row, time_s, new_s, row - SPAN, times[0], refined=True)
 
     def scan(self, time_s: np.ndarray) -> list[RateChange]:
         """The changes in a block of stamps: what ``step`` on each would report, vectorised."""
@@ -140,13 +166,15 @@ class RateWatch:
             low = np.clip(cast - VOTES, 0, None)
             decides = has_span & (cast - low >= VOTES) & \
                 (np.maximum(slow[cast] - slow[low], fast[cast] - fast[low]) * 2 > VOTES)
-            hits = np.flatnonzero(decides | fast_hit)
+            refine_hit = self._refine & (self._since + np.arange(1, len(block) + 1) == SPAN)
+            hits = np.flatnonzero(decides | fast_hit | refine_hit)
             upto = len(block) if len(hits) == 0 else int(hits[0])
             self._commit(block[:upto], has_span[:upto], vote[:upto])
             if len(hits):  # the deciding row, by the scalar code
                 change = self.step(float(block[upto]))
-                assert change is not None  # the vectorised votes and the deques agree
-                changes.append(change)
+                assert change is not None or refine_hit[upto]  # the vectorised votes and the deques agree
+                if change is not None:
+                    changes.append(change)
                 upto += 1
             window = 1024 if len(hits) else 2 * window
             pos += upto
