@@ -215,6 +215,14 @@ def test_c_matches_compensate_py_with_a_startup_offset(bundles, paper_csv, tmp_p
     # and so is its noise, in the bar from the window's end on only (this bundle's bar had no window)
     after = columns["time_s"] - columns["time_s"][0] >= 600.0
     assert np.all(c_out[after, 4:7] > plain[after, 4:7]) and np.array_equal(c_out[~after, 4:7], plain[~after, 4:7])
+    # the host driver reads the recording itself, its "#" metadata lines skipped; other columns first: one line
+    subprocess.run([str(exe), str(csv), str(tmp_path / "direct.csv"), "1", "600"], check=True, capture_output=True)
+    np.testing.assert_allclose(np.loadtxt(tmp_path / "direct.csv", delimiter=",", skiprows=1, ndmin=2), c_out,
+                               rtol=0, atol=1e-6)
+    (tmp_path / "swapped.csv").write_text("# fs_hz=2\ntime_s,gyro_x_dps,temp_c,gyro_y_dps,gyro_z_dps\n0,0,25,0,0\n")
+    refused = subprocess.run([str(exe), str(tmp_path / "swapped.csv"), str(tmp_path / "x.csv")], capture_output=True,
+                             text=True)
+    assert refused.returncode == 2 and refused.stderr.count("\n") == 1 and "must begin time_s,temp_c" in refused.stderr
 
 
 def test_state_size_and_symbols(bundles, tmp_path):
@@ -299,7 +307,9 @@ def test_export_command_writes_c(bundle, tmp_path):
                            f"output={out}", f"hydra.run.dir={tmp_path / 'hydra'}"], cwd=ROOT, capture_output=True,
                           text=True)
     assert proc.returncode == 0, proc.stderr
-    assert (out / "gyronet_compensator.h").is_file() and (out / "gyronet_compensator.c").is_file()
+    write_c(bundle, tmp_path / "direct")  # the command writes what the generator writes, byte for byte
+    for name in ("gyronet_compensator.h", "gyronet_compensator.c"):
+        assert (out / name).read_bytes() == (tmp_path / "direct" / name).read_bytes()
 
 
 @pytest.mark.slow

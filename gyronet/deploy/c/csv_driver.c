@@ -3,8 +3,9 @@
  *     cc -std=c99 -O2 -I DIR csv_driver.c DIR/gyronet_compensator.c -lm -o driver
  *     ./driver in.csv out.csv [repeat [still_s]]
  *
- * in.csv: a header line, then time_s,temp_c,gyro_x_dps,gyro_y_dps,gyro_z_dps[,aux...] per line
- * (nan allowed). out.csv: gyro_x_dps,gyro_y_dps,gyro_z_dps,flags,drift_sigma_x_dps,drift_sigma_y_dps,
+ * in.csv: a gyronet recording whose columns begin time_s,temp_c,gyro_x_dps,gyro_y_dps,gyro_z_dps[,aux...]
+ * (the simulator's order; nan allowed): the "#" lines above the header are skipped, the header is checked and
+ * later columns are ignored. out.csv: gyro_x_dps,gyro_y_dps,gyro_z_dps,flags,drift_sigma_x_dps,drift_sigma_y_dps,
  * drift_sigma_z_dps per sample. The step loop runs
  * `repeat` times from gyronet_init (default 1) and its best time per sample goes to stderr as
  * "ns_per_sample=..."; still_s > 0 calls gyronet_start_offset first.
@@ -12,11 +13,13 @@
 #define _POSIX_C_SOURCE 199309L
 #include <stdio.h>
 #include <stdlib.h>
+#include <string.h>
 #include <time.h>
 
 #include "gyronet_compensator.h"
 
 #define N_COLUMNS (5 + GYRONET_N_AUX)
+#define FIRST_COLUMNS "time_s,temp_c,gyro_x_dps,gyro_y_dps,gyro_z_dps"
 
 static double now_s(void)
 {
@@ -42,7 +45,14 @@ int main(int argc, char **argv)
         fprintf(stderr, "usage: %s in.csv out.csv [repeat [still_s]]\n", argv[0]);
         return 2;
     }
-    if (!fgets(line, sizeof line, in)) {
+    do {
+        if (!fgets(line, sizeof line, in)) {
+            fprintf(stderr, "%s: no header line\n", argv[1]);
+            return 2;
+        }
+    } while (line[0] == '#');
+    if (strncmp(line, FIRST_COLUMNS, strlen(FIRST_COLUMNS)) != 0) {
+        fprintf(stderr, "%s: the columns must begin " FIRST_COLUMNS "\n", argv[1]);
         return 2;
     }
     while (fgets(line, sizeof line, in)) {
