@@ -6,7 +6,7 @@ from typing import Mapping
 
 import numpy as np
 
-from gyronet.allan.noise import BIAS_INSTABILITY_FACTOR
+from gyronet.allan.noise import BIAS_INSTABILITY_FACTOR, MIN_CLUSTERS
 from gyronet.allan.report import AXES, axes_of, num
 
 
@@ -43,7 +43,7 @@ def plot_allan(report_or_curves: Mapping, path=None, title: str = "Allan deviati
     panels = fig.subplots(1, n_panels, squeeze=False, sharey=True)[0]
     ranges = []
     for panel, axis in zip(panels, axis_names):
-        ranges += [_plot_curve(panel, report[axis], f"C{index % 10}", label)
+        ranges += [_plot_curve(panel, report[axis], f"C{index % 10}", label, _max_fit_tau_s(report))
                    for index, (label, report) in enumerate(curves.items()) if axis in report]
         panel.set_title(f"{axis} axis")
         panel.set_xlabel("tau (s)")
@@ -61,13 +61,25 @@ def plot_allan(report_or_curves: Mapping, path=None, title: str = "Allan deviati
     return fig
 
 
-def _plot_curve(panel, curve: Mapping, color: str, label: str | None) -> tuple[float, float] | None:
-    """Draw one axis' curve and its fitted lines; return the range of the positive ADEV values."""
+def _max_fit_tau_s(report: Mapping) -> float:
+    """The longest tau N, B and K are read at: the record over ``MIN_CLUSTERS`` (inf if the report lacks it)."""
+    used = report.get("segments", {}).get("n_samples_used")
+    return used / report["fs_hz"] / MIN_CLUSTERS if used and report.get("fs_hz") else math.inf
+
+
+def _plot_curve(panel, curve: Mapping, color: str, label: str | None,
+                max_fit_tau_s: float = math.inf) -> tuple[float, float] | None:
+    """Draw one axis' curve (faint past the taus N, B and K are read at) and its fitted lines; return the range
+    of the positive ADEV values."""
     taus = np.asarray(curve["taus_s"], dtype=np.float64)
     dev = np.asarray(curve["adev_dps"], dtype=np.float64)
     arw, bias, rrw = (_finite(curve.get(k)) for k in ("arw_deg_rthr", "bias_instability_deg_hr", "rrw_deg_hr_rthr"))
     terms = f"N={num(arw)} deg/rt(h), B={num(bias)} deg/h, K={num(rrw)} deg/h/rt(h)"
-    panel.loglog(taus, dev, color=color, lw=1.6, label=f"{label}: {terms}" if label else terms)
+    read = taus <= max_fit_tau_s
+    panel.loglog(taus[read], dev[read], color=color, lw=1.6, label=f"{label}: {terms}" if label else terms)
+    if not read.all():  # fewer than MIN_CLUSTERS clusters: shown, not read (joined to the last read tau)
+        tail = max(int(read.sum()) - 1, 0)
+        panel.loglog(taus[tail:], dev[tail:], color=color, lw=1.0, alpha=0.35)
     # sigma = N / sqrt(tau), sigma = 0.664 B, sigma = K sqrt(tau / 3), all back in deg/s.
     if math.isfinite(arw):
         _line_and_mark(panel, taus, lambda t: arw / 60.0 / np.sqrt(t), curve.get("arw_tau_s"), color, "--", "s")
