@@ -78,10 +78,10 @@ def test_the_real_runs_floors_and_the_cubic_held_out_as_the_study_found():
     np.testing.assert_allclose(table["floor_dps"]["cats_run_z_down"], [0.012, 0.013, 0.018], rtol=0.1)
     assert table["touched_blocks"] == {"cats_run_z_down": 0, "cats_run_y_down": 0}
     cubic = table["rows"]["poly3 | startup 600 s"]["ratio"]
-    # the study (/work/notes/campaign.md): y->z [7.83, 4.37, 1.33], z->y [6.17, 8.77, 3.24]
+    # the published table these functions made (docs/results/real-data.md, its command): it still comes out so
     np.testing.assert_allclose(cubic["cats_run_z_down"], [7.83, 4.37, 1.33], rtol=0.05)
     np.testing.assert_allclose(cubic["cats_run_y_down"], [6.17, 8.77, 3.24], rtol=0.05)
-    # PX4's script fitted on every sample of the other run (README "PX4 and ArduPilot"): worse than poly3
+    # PX4's script fitted on every sample of the other run (the same table's px4 row): worse than poly3
     px4 = table["rows"]["px4 | startup 600 s"]["ratio"]
     np.testing.assert_allclose(px4["cats_run_z_down"], [10.12, 4.43, 1.56], rtol=0.05)
     markdown = to_markdown(table)

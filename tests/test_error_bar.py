@@ -227,7 +227,7 @@ def test_calibrated_on_a_held_out_history(bundle, cycle_csv, tmp_path):
     """Trained on the paper staircase, compensated on the cycle (heating too), scored against its truth.
 
     This bundle (8 Gaussians, 300 steps, one member) has 48 / 54 / 90 % of the cycle's 60 s blocks
-    within 1 sigma (64 % pooled) and 72 / 91 / 97 % within 2 (README "Error bars" has the default's
+    within 1 sigma (64 % pooled) and 72 / 91 / 97 % within 2 (docs/results/error-bars.md has the default's
     table). A bar 3x too narrow or too wide leaves these bounds: every axis 35-98 %, pooled 50-90 %,
     and 2 sigma at least 75 % pooled.
     """

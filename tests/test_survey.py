@@ -1,6 +1,6 @@
 """The survey: the wider sensor distribution draws what it says, and scripts/survey.py writes its table.
 
-The figures are the lead's full run's business (README "Survey"); here two sensors on tiny 1 Hz
+The figures are the lead's full run's business (docs/results/survey.md); here two sensors on tiny 1 Hz
 histories with a few training steps check the command end to end, in this process (``runpy``, as
 ``python scripts/survey.py`` runs it), its resume, and its one-line errors.
 """
@@ -289,7 +289,7 @@ def test_more_training_histories_train_every_method_as_a_campaign(tmp_path, monk
 
 
 def test_the_bound_alone_needs_no_training(tmp_path, monkeypatch):
-    """methods=null: form-bound on the same records, in seconds a sensor (README: what one cycle holds)."""
+    """methods=null: form-bound on the same records, in seconds a sensor (docs/results/survey.md: what one cycle holds)."""
     out = tmp_path / "bound"
     assert run_survey(monkeypatch, *TINY, "methods=null", "ours=form-bound", "reference=null",
                       f"hydra.run.dir={out}") == 0

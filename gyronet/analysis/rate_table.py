@@ -1,4 +1,4 @@
-"""The README's "Rate changes and jitter" table: damaged sample clocks scored against the simulator's truth.
+"""The table of docs/results/rate-changes.md: damaged sample clocks scored against the simulator's truth.
 
 Each case is the held-out recording (a thermal history the bundle was not trained on) with its
 clock damaged (:mod:`gyronet.sim.timing`), compensated as ``compensate.py`` runs it

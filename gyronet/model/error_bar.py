@@ -158,7 +158,7 @@ class ErrorBar:
                 f"{v:.0%}" for v in cross) + " (x/y/z; goal 60-76 %)")
             return f"drift_sigma: calibrated on {blocks} of {len(runs)} runs, each held out in turn{checked}"
         return (f"drift_sigma: calibrated on {blocks} held out of one recording; on a real sensor's next run the "
-                "error was 3-15x it (README \"Error bars\"): a campaign (data.paths) calibrates it across runs")
+                "error was 3-15x it (docs/results/error-bars.md): a campaign (data.paths) calibrates it across runs")
 
     # -- meta.json ----------------------------------------------------------------------------------
 

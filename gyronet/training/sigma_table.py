@@ -158,7 +158,7 @@ def score_still(compensated_path: str | Path, still_s: float = 0.0) -> dict[str,
 
 
 def to_markdown(rows: Sequence[Mapping[str, Any]]) -> str:
-    """The README's table: one row per held-out record, within 1 sigma per axis, inside / outside the box."""
+    """docs/results/error-bars.md's table: a row per held-out record, within 1 sigma per axis, inside / outside the box."""
     def pct(values: Mapping[str, float]) -> str:
         return " / ".join("-" if not np.isfinite(values[a]) else f"{100 * values[a]:.0f}" for a in AXES)
 

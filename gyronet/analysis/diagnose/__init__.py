@@ -8,7 +8,7 @@ a new recording needs no new code; the rows they are scored on are in :mod:`.row
 :mod:`.screen`, the report and its figures in :mod:`.report`. Equivalent explanations are grouped
 in :mod:`.choose` (the simplest kept, the others its ``alternatives``); several runs
 (``data.paths``) go through :mod:`.runs`, with run-level candidates (``run_offset``, orientation)
-and their null in :mod:`.runlevel`; what to record next is :mod:`.advice`. The README's table on
+and their null in :mod:`.runlevel`; what to record next is :mod:`.advice`. The table (docs/results/effects.md) on
 the simulator's effects (both bundles checked on another history) is :mod:`.effects`.
 """
 from gyronet.analysis.diagnose.candidates import CandidateGrid, candidate_specs, effect_kind, filter_tau

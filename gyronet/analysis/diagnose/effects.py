@@ -1,4 +1,4 @@
-"""The README's table on the simulator's effects: each diagnosis's bundles scored on another history.
+"""The table on the simulator's effects (docs/results/effects.md): each diagnosis's bundles scored on another history.
 
 One row per simulated effect: what the diagnosis found, its held-out residual (``diagnosis.json``)
 baseline -> final, and both bundles checked against the ground truth of a second recording of the
@@ -64,7 +64,7 @@ def _named(effect: Mapping[str, Any]) -> str:
 
 
 def found_text(found: Sequence[Mapping[str, Any]]) -> str:
-    """Name what was found as the README does, kind, source and parameter (``lag `temp_c` tau_s=1773``),
+    """Name what was found as docs/results/effects.md does, kind, source and parameter (``lag `temp_c` tau_s=1773``),
     each effect's equivalent explanations in brackets (``(or lag `temp_c` tau_s=2018)``)."""
     if not found:
         return "nothing"
@@ -77,12 +77,12 @@ def found_text(found: Sequence[Mapping[str, Any]]) -> str:
 
 
 def _axes(values: Mapping[str, float], scale: float, digits: int) -> str:
-    """Put x/y/z in one cell, as every column of the README's table does."""
+    """Put x/y/z in one cell, as every column of the effects table does."""
     return "/".join(f"{values[a] * scale:.{digits}f}" for a in AXES)
 
 
 def to_markdown(rows: Sequence[Mapping[str, Any]]) -> str:
-    """Print the table as the README shows it, so a re-run is pasted in as it is: one line per effect."""
+    """Print the table as docs/results/effects.md shows it, so a re-run is pasted in as it is: one line per effect."""
     lines = ["| " + " | ".join(COLUMNS) + " |", "|" + "---|" * len(COLUMNS)]
     for row in rows:
         held, base, final = row["held_out_dps"], row["check"]["baseline"], row["check"]["final"]

@@ -3,7 +3,7 @@
 One sensor is :func:`run_sensor` (:mod:`.sensor_run`, scored by :mod:`.scoring`, beside :mod:`.bound`'s fit of the
 simulator's own formula); :func:`survey` runs many in parallel
 (joblib, one process a job), resuming the sensors already finished; :mod:`.table` makes the
-README's table (median, 90th percentile and worst of each sensor's worst axis).
+table of docs/results/survey.md (median, 90th percentile and worst of each sensor's worst axis).
 """
 from __future__ import annotations
 

@@ -122,7 +122,7 @@ def error_bar_summary(results: Sequence[Mapping[str, Any]], method: str) -> dict
 
 
 def to_markdown(summary: Mapping[str, Any], settings: Mapping[str, Any]) -> str:
-    """The README's survey table, the ratio to the reference, the goals and the sensors that miss one."""
+    """The survey's table (docs/results/survey.md), the ratio to the reference, the goals and the sensors that miss one."""
     ours, reference, goals, met = summary["ours"], summary["reference"], summary["goals"], summary["met"]
     lines = [f"Residual / noise floor of each sensor's worst axis, {summary['n_sensors']} sensors "
              f"(distribution {settings.get('distribution', '?')}), trained on {settings.get('train', '?')}, "
