@@ -60,7 +60,10 @@ def _check_type(cfg: DictConfig, key: str, hint: Any) -> None:
         return
     expected = _expected(value, hint)
     if expected is not None:
-        raise ConfigError(f"{key} must be {expected}, got {value!r}")
+        # one value where a list belongs: the shell's quoting of a Hydra list is the usual stumble
+        quoted = f" (a list on the command line: '{key}=[{value}]')" if expected.startswith("a list") and \
+            not isinstance(value, (list, dict)) else ""
+        raise ConfigError(f"{key} must be {expected}, got {value!r}{quoted}")
 
 
 _SEQUENCES = (list, tuple, collections.abc.Sequence)

@@ -117,6 +117,11 @@ def bad_files(tmp_path_factory) -> dict[str, Path]:
             "no_column": folder / "no_gyro.csv"}
 
 
+# what each of them is refused for, in the one line
+BAD_FILE_REASONS = {"missing": "no such file", "not_csv": "not a CSV file", "empty": "empty file",
+                    "no_column": "missing required column(s) gyro_x_dps"}
+
+
 def command_cases(bundle: Path, work: Path) -> dict[str, dict]:
     """Per command: the key that names its input file (or None), base arguments, a typo and its fix."""
     return {
@@ -150,7 +155,8 @@ def bad_input_cases(bundle: Path, bad_files: dict[str, Path], work: Path) -> lis
         # the stream's "file" is its bundle folder: a missing one, or a file that is no bundle
         files = {k: v for k, v in bad_files.items() if key != "model" or k in ("missing", "not_csv")}
         for case, path in files.items() if key else ():
-            add(case, [*[a for a in base if not a.startswith(f"{key}=")], f"{key}={path}"], (path.name,))
+            reason = "not a compensator bundle" if key == "model" else BAD_FILE_REASONS[case]
+            add(case, [*[a for a in base if not a.startswith(f"{key}=")], f"{key}={path}"], (path.name, reason))
         typo, suggestion = spec["typo"]
         add("typo", [*base, typo], (suggestion,))
         # the mandatory value: the input file, or what the command cannot do without
@@ -173,7 +179,8 @@ TRAIN_EXTRA = {
     "wrong_type": (["data.path=F.csv", "model.n_centers=abc"], "model.n_centers must be an integer, got 'abc'"),
     "wrong_item_type": (["data.path=F.csv", "data.static_rate_dps=[a,0,0]"],
                         "data.static_rate_dps must be a list of numbers"),
-    "eval_paths_text": (["data.path=F.csv", "eval.paths=G.csv"], "eval.paths must be a list, got 'G.csv'"),
+    "eval_paths_text": (["data.path=F.csv", "eval.paths=G.csv"],
+                        "eval.paths must be a list, got 'G.csv' (a list on the command line: 'eval.paths=[G.csv]')"),
 }
 
 
