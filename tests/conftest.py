@@ -21,8 +21,8 @@ needs_cats = pytest.mark.skipif(not all(p.is_file() for p in CATS_RUNS),
                                 reason=f"the real cats-tag runs are not at {CATS} (../shared is not in the repository)")
 FAST_FS_HZ = 2.0  # the drift is slow; 2 Hz keeps tests quick while the noise stays white
 
-# property-based tests: a small example budget in the default run, a larger one under -m slow
-# (HYPOTHESIS_PROFILE=slow); no deadline, since CI machines vary in speed
+# property-based tests: a small example budget in every run (CI's too), ten times more with
+# HYPOTHESIS_PROFILE=slow; no deadline, since CI machines vary in speed
 _HYPOTHESIS_COMMON = dict(deadline=None, suppress_health_check=[HealthCheck.too_slow], derandomize=True)
 settings.register_profile("default", max_examples=40, **_HYPOTHESIS_COMMON)
 settings.register_profile("slow", max_examples=400, **_HYPOTHESIS_COMMON)

@@ -9,7 +9,7 @@ is; every other row's output equals the reference built from the undamaged file 
 damaged rows (the rows a temperature glitch hits are lost samples to the features; a gyro glitch
 leaves the features whole and is lost to the start-up window and the Kalman stage); Allan equals
 the undamaged file's without the impossible samples; live, one row at a time, equals the batch.
-The default run tries a few dozen files; ``-m slow`` (HYPOTHESIS_PROFILE=slow) ten times more.
+The default run tries a few dozen files; HYPOTHESIS_PROFILE=slow ten times more.
 """
 import math
 
