@@ -325,7 +325,8 @@ def test_the_script_reports_bad_input_in_one_line(tmp_path):
 
 def test_the_real_psim_recording_reports_what_it_can(tmp_path):
     source = SHARED / "data" / "real" / "psim-tvc" / "TVCtest3_7_20.csv"
-    importers = pytest.importorskip("gyronet.recordings.importers")
+    from gyronet.recordings import importers
+
     if not source.is_file():
         pytest.skip("no psim-tvc data")
     path = tmp_path / "psim.csv"

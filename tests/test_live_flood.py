@@ -84,6 +84,8 @@ def test_flood_path_writes_the_same_file_and_summary_as_frame_by_frame(bundle, f
     slow, _ = run(monkeypatch, bundle, tmp_path, reads, False, "slow", **options)
     assert {k: fast[k] for k in SUMMARY_KEYS} == {k: slow[k] for k in SUMMARY_KEYS}
     assert fast["clock_restarts"] == 1 and fast["n_faults"] > 50
+    if max_samples is not None:  # the stream stops there, on either path
+        assert fast["n_samples"] == max_samples and fast["stopped"] == "max_samples"
     assert (tmp_path / "fast.csv").read_bytes() == (tmp_path / "slow.csv").read_bytes()
 
 
@@ -142,6 +144,8 @@ def test_csv_flood_path_writes_the_same_file_and_summary_as_line_by_line_and_off
     assert fast["clock_restarts"] == 1 and fast["n_faults"] > 50
     if max_samples is None:
         assert fast["faults"] == log["expected_faults"] and fast["n_samples"] == len(log["good_indices"])
+    else:
+        assert fast["n_samples"] == max_samples and fast["stopped"] == "max_samples"
     assert (tmp_path / "fast.csv").read_bytes() == (tmp_path / "slow.csv").read_bytes()
     time_s, rate_dps = offline_by_segment(bundle, reads, CsvLineParser(), **options["startup"])
     n = len(rows)

@@ -363,7 +363,8 @@ def test_any_register_of_either_generation_decodes_what_was_sent(generation, bit
     again = (LpBusLayout.from_config_register(layout.config_register) if generation == "legacy" else
              LpBusLayout.from_transmit_register(layout.config_register, precision, radians=layout.radians))
     assert again == layout
-    row = {c: 0.5 for c in layout.columns} | {"time_s": 2.0}
+    value = {c: 0.5 + 0.01 * k for k, c in enumerate(layout.columns)}  # a column read into another's place shows
+    row = value | {"time_s": 2.0}
     frames = b"".join(encode_lpbus(row | {"time_s": 2.0 + i}, layout) for i in range(3))
     parser = LpBusParser(layout)
     items = parser.feed(frames[:cut]) + parser.feed(frames[cut:])
@@ -373,7 +374,7 @@ def test_any_register_of_either_generation_decodes_what_was_sent(generation, bit
             step = 1.0 / spec.scale(layout.radians) if precision == 16 else 1e-6
             step = math.degrees(step) if spec.angular and layout.radians and precision == 16 else step
             for column in spec.columns:
-                assert item.values[column] == pytest.approx(0.5, abs=step / 2 + 1e-9)
+                assert item.values[column] == pytest.approx(value[column], abs=step / 2 + 1e-9)
 
 
 @given(commands=st.lists(st.tuples(st.integers(0, 200), st.binary(max_size=40)), min_size=1, max_size=8),

@@ -154,7 +154,6 @@ def _reference_module():
 @pytest.mark.parametrize("case", sorted(REFERENCE["cases"]))
 def test_px4_fit_equals_px4s_own_script_on_the_same_ulog(tmp_path, case):
     """PX4's process_sensor_caldata.py, run unmodified (px4_reference.json says how), against model=px4."""
-    pytest.importorskip("pyulog")
     from gyronet.recordings.importers.ulog import import_ulog
 
     reference, fixture = _reference_module(), REFERENCE["cases"][case]

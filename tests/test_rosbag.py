@@ -11,11 +11,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
-rosbags = pytest.importorskip("rosbags")
-from rosbags.rosbag1 import Writer as Writer1  # noqa: E402
-from rosbags.rosbag2 import StoragePlugin, Writer as Writer2  # noqa: E402
-from rosbags.typesys import Stores, get_typestore  # noqa: E402
+from rosbags.rosbag1 import Writer as Writer1
+from rosbags.rosbag2 import StoragePlugin, Writer as Writer2
+from rosbags.typesys import Stores, get_typestore
 
 from gyronet.recordings.data import load_recording  # noqa: E402
 from gyronet.errors import RecordingError  # noqa: E402

@@ -187,4 +187,3 @@ def test_live_stream_with_startup_equals_offline(bundle, biased_csv, tmp_path):
     offline = comp.process(load_recording(short).columns).rate_dps
     assert len(live) == len(offline)
     np.testing.assert_allclose(live[list(GYRO_COLUMNS)].to_numpy(), offline, rtol=0, atol=1e-9)
-    assert comp.startup.done
