@@ -1,4 +1,5 @@
 """Play a recording into a pseudo-terminal as a sensor would: python scripts/emulate_sensor.py input=F.csv protocol=lpbus."""
+import signal
 import sys
 from pathlib import Path
 
@@ -15,6 +16,7 @@ from _cli import command  # noqa: E402
 @command("emulate", schemas={"lpbus": "gyronet.deploy.stream.LpBusLayout", "faults": "gyronet.deploy.stream.FaultPlan",
                              "sensor": "gyronet.deploy.stream.lpbus_device.EmulatedLpms"}, required=("input",))
 def main(cfg: DictConfig) -> None:
+    signal.signal(signal.SIGTERM, signal.default_int_handler)  # stopped as by Ctrl-C: the port's link is removed
     options = OmegaConf.to_container(cfg, resolve=True)
     sensor = options.get("sensor") or {}
     device = EmulatedLpms(**{**sensor, "firmware": tuple(sensor["firmware"]), "fields": tuple(sensor["fields"])}) \

@@ -177,8 +177,8 @@ def test_sigint_stops_cleanly_with_summary(bundle, short_recording, tmp_path, pr
         time.sleep(0.1)
     stream.send_signal(signal.SIGINT)
     assert stream.wait(30) == 0, (tmp_path / "stream.log").read_text()[-3000:]
-    emulator.send_signal(signal.SIGINT)
-    emulator.wait(30)
+    emulator.send_signal(signal.SIGTERM)  # as Ctrl-C: it stops cleanly, and its link goes with it
+    assert emulator.wait(30) == 0 and not link.is_symlink(), (tmp_path / "emulator.log").read_text()[-3000:]
 
     result = json.loads(summary.read_text())
     assert result["stopped"] == "interrupted"
