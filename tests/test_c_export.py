@@ -27,7 +27,7 @@ CFLAGS = ["-std=c99", "-Wall", "-Wextra", "-Werror", "-pedantic", "-O2"]
 TOL_DPS = 1e-4
 AUX = "vdd_v"
 
-pytestmark = pytest.mark.skipif(CC is None, reason="no C compiler (cc or gcc) on this machine")
+needs_cc = pytest.mark.skipif(CC is None, reason="no C compiler (cc or gcc) on this machine")  # the tests that build
 
 
 def _train(out: Path, csv: Path, model_factory, features=None, kalman=None, for_bundle=False) -> Path:
@@ -171,6 +171,7 @@ def _check(c_out: np.ndarray, py) -> None:
         np.testing.assert_allclose(c_out[:, 4:7], py.drift_sigma_dps, rtol=1e-4, atol=1e-6)
 
 
+@needs_cc
 @pytest.mark.parametrize("kind", ["default", "kalman", "kalman_rate", "paper_rbf", "poly3", "lsq", "aux", "members",
                                   "axis_lag", "members_axis_lag"])
 def test_c_matches_compensator_on_a_hard_recording(kind, bundles, paper_csv, aux_csv, tmp_path):
@@ -190,6 +191,7 @@ def test_c_matches_compensator_on_a_hard_recording(kind, bundles, paper_csv, aux
         assert json.loads((bundles[kind] / "meta.json").read_text())["error_bar"]["n_members"] == 3
 
 
+@needs_cc
 def test_c_matches_compensate_py_with_a_startup_offset(bundles, paper_csv, tmp_path):
     """compensate_file (compensate.py's code) on a CSV with gaps and startup.still_s, against the C."""
     from gyronet.bundle.offline import compensate_file
@@ -225,6 +227,7 @@ def test_c_matches_compensate_py_with_a_startup_offset(bundles, paper_csv, tmp_p
     assert refused.returncode == 2 and refused.stderr.count("\n") == 1 and "must begin time_s,temp_c" in refused.stderr
 
 
+@needs_cc
 def test_state_size_and_symbols(bundles, tmp_path):
     """sizeof(gyronet_state) is the size write_c reports; the object needs no heap and no libm but expf/fabsf/sqrtf."""
     exe, summary = _build(bundles["kalman"], tmp_path)
@@ -312,6 +315,7 @@ def test_export_command_writes_c(bundle, tmp_path):
         assert (out / name).read_bytes() == (tmp_path / "direct" / name).read_bytes()
 
 
+@needs_cc
 @pytest.mark.slow
 def test_bench_row_quick(tmp_path):
     """scripts/bench.py's c_compensator row runs (quick sizes) and its C agrees with Python."""
@@ -328,6 +332,7 @@ def test_bench_row_quick(tmp_path):
     assert result["max_diff_dps"] < TOL_DPS
 
 
+@needs_cc
 @pytest.mark.slow
 def test_float32_at_1khz_with_a_long_lag_after_11_days(tmp_path):
     """1 kHz, a 600 s lag, a clock at 1e6 s: where float32 state or time would break, the C still agrees."""
