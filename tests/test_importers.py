@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import math
+import re
 import struct
 import subprocess
 import sys
@@ -93,6 +94,26 @@ def test_real_psim_file_rows_temperature_bursts_and_bias_slope():
     assert slopes["y"] == pytest.approx(-14.0, abs=3.0)
     assert abs(slopes["z"]) < 5.0
     assert len(import_recording(PSIM_CSV, "psim", drop_spikes=False)) == 6250
+
+
+def test_a_chamber_log_is_converted_and_interpolated_at_its_assumed_offset(tmp_path):
+    """The chamber-log path without the real file: degF and degC probes, an offset, a sample outside, not a log."""
+    src = write_psim(tmp_path / "tvc.csv", [
+        "1000,-1.46E-05,2.72E-05,2.82E-05,-6.53E-02,5.71E-02,2.96E-02,256",
+        "1020,-1.46E-05,2.69E-05,2.78E-05,-6.53E-02,5.65E-02,2.90E-02,256",
+    ])
+    chamber = tmp_path / "chamber.csv"
+    chamber.write_text("\ufeffTime,F2 (F),C1 (C),,\n15:45,68,20.0,,\n15:50,77,25.0,,\nnotes,,,,\n")
+    # the first sample 150 s after the 15:45 row: halfway to 15:50
+    rec = import_recording(src, "psim", chamber_log=chamber, chamber_offset_s=-150.0)
+    np.testing.assert_allclose(rec.columns["chamber_f2_c"], [22.5, 22.5 + 5.0 / 300.0 * 0.02], rtol=1e-12)
+    np.testing.assert_allclose(rec.columns["chamber_c1_c"], [22.5, 22.5 + 5.0 / 300.0 * 0.02], rtol=1e-12)
+    assert "-150.0 s" in rec.meta["chamber_alignment"] and rec.meta["chamber_log"] == "chamber.csv"
+    with pytest.raises(RecordingError, match=re.escape("2 sample(s) fall outside the chamber log (15:45..15:50)")):
+        import_recording(src, "psim", chamber_log=chamber, chamber_offset_s=1.0)  # the log starts after them
+    (tmp_path / "not_a_log.csv").write_text("when,what\n1,2\n")
+    with pytest.raises(RecordingError, match="not a chamber log"):
+        import_recording(src, "psim", chamber_log=tmp_path / "not_a_log.csv")
 
 
 @needs_psim
