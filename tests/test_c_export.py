@@ -124,6 +124,7 @@ def _hard(columns: dict) -> dict:
     temp[int(np.argmax(temp > np.nanmax(temp[temp < 1e3]) - 4.0)):] += 6.0
     gyro_x[[500, 20000]] = np.nan
     gyro_z[[600, 600 + 1, 25000]] = 1e5
+    out["time_s"][[350, 21000]] = np.nan, np.inf  # stamps that are no time: lost samples
     if AUX in out:
         out[AUX][[700, 26000]] = np.nan
     return out
@@ -225,6 +226,20 @@ def test_c_matches_compensate_py_with_a_startup_offset(bundles, paper_csv, tmp_p
     refused = subprocess.run([str(exe), str(tmp_path / "swapped.csv"), str(tmp_path / "x.csv")], capture_output=True,
                              text=True)
     assert refused.returncode == 2 and refused.stderr.count("\n") == 1 and "must begin time_s,temp_c" in refused.stderr
+
+
+@needs_cc
+def test_c_takes_a_stamp_that_is_no_time_as_python_does_in_and_after_the_start_up_window(bundles, paper_csv, tmp_path):
+    """NaN and inf stamps: lost samples that neither start nor end the window, with time features (aux bundle)."""
+    columns = {k: v[:4000] for k, v in _columns(paper_csv).items()}
+    columns["time_s"][[0, 5, 600, 1199, 1200, 1201, 3000]] = np.nan, np.inf, -np.inf, np.inf, np.nan, np.inf, np.nan
+    for kind in ("kalman", "aux"):
+        if kind == "aux":
+            columns[AUX] = 3.3 - 0.002 * (columns["temp_c"] - 25.0)
+        exe, summary = _build(bundles[kind], tmp_path / kind)
+        py = _python(bundles[kind], columns, still_s=600.0)
+        assert np.flatnonzero(py.bad_input).tolist() == [0, 5, 600, 1199, 1200, 1201, 3000]
+        _check(_run_c(exe, columns, summary["aux_inputs"], tmp_path / kind, still_s=600.0), py)
 
 
 @needs_cc

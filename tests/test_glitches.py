@@ -98,6 +98,29 @@ def test_a_temperature_glitch_leaves_every_other_row_as_the_record_without_it(lo
     np.testing.assert_array_equal(out.drift_dps[rows], np.repeat(out.drift_dps[start - 1][None], len(rows), 0))
 
 
+@given(rows=st.sets(st.integers(1, N_ROWS - 1), min_size=1, max_size=30),
+       stamp=st.sampled_from([np.nan, np.inf, -np.inf]), kalman=st.booleans(), startup=st.booleans(),
+       chunk=st.sampled_from([None, 1, 7]))
+def test_a_stamp_that_is_no_time_leaves_every_other_row_as_the_record_without_it(loaded, short, rows, stamp, kalman,
+                                                                                startup, chunk):
+    """NaN or inf for a time (a driver's glitch): a lost sample, not a clock that jumped; batch or in chunks."""
+    rows = np.array(sorted(rows))
+    columns = {k: v.copy() for k, v in short.columns.items()}
+    columns["time_s"][rows] = stamp
+    compensator = _make(loaded, kalman, startup)
+    if chunk is None:
+        out = compensator.process(columns)
+        rate_dps, bad_input = out.rate_dps, out.bad_input
+    else:
+        pieces = [compensator.process({k: v[i:i + chunk] for k, v in columns.items()}) for i in range(0, N_ROWS, chunk)]
+        rate_dps, bad_input = np.vstack([p.rate_dps for p in pieces]), np.concatenate([p.bad_input for p in pieces])
+    others = np.ones(N_ROWS, dtype=bool)
+    others[rows] = False
+    without = _make(loaded, kalman, startup).process({k: v[others] for k, v in short.columns.items()})
+    assert np.flatnonzero(bad_input).tolist() == rows.tolist() and np.isfinite(rate_dps).all()
+    np.testing.assert_allclose(rate_dps[others], without.rate_dps, rtol=0, atol=1e-12)
+
+
 @st.composite
 def gyro_glitches(draw):
     """Rows (up to 60, anywhere but row 0), axes and values of impossible gyro readings."""

@@ -44,14 +44,16 @@ def test_the_offsets_noise_is_the_window_means_and_widens_only_what_follows():
     chunks = [startup.process(time_s[i:i + 333], rate[i:i + 333]) for i in range(0, len(time_s), 333)]
     assert np.vstack(chunks).shape == rate.shape
     np.testing.assert_allclose(np.sqrt(startup.noise_var_dps2), np.array([0.1, 0.2, 0.05]) / np.sqrt(1200), rtol=0.06)
-    sigma = np.full((len(time_s), 3), 0.003)
-    wide = startup.widen(time_s, sigma)
-    after = time_s >= 600
-    np.testing.assert_array_equal(wide[~after], sigma[~after])
-    np.testing.assert_allclose(wide[after], np.broadcast_to(np.sqrt(0.003 ** 2 + startup.noise_var_dps2), (after.sum(), 3)))
     whole = StartupOffset(still_s=600)
     whole.process(time_s, rate)  # chunks or not, the same differences
     np.testing.assert_allclose(whole.noise_var_dps2, startup.noise_var_dps2, rtol=1e-12)
+    sigma = np.full((len(time_s), 3), 0.003)
+    wide = whole.widen(sigma)  # of the chunk it last had
+    after = time_s >= 600
+    np.testing.assert_array_equal(wide[~after], sigma[~after])
+    np.testing.assert_allclose(wide[after], np.broadcast_to(np.sqrt(0.003 ** 2 + whole.noise_var_dps2), (after.sum(), 3)))
+    last = (len(time_s) - 1) // 333 * 333  # the chunked one's last chunk: all past the window
+    np.testing.assert_allclose(startup.widen(sigma[last:]), wide[last:])
 
 
 def test_the_bar_widens_by_the_offsets_noise_unless_its_runs_were_scored_with_one(bundle, biased_csv):

@@ -211,7 +211,7 @@ class Compensator:
             held_dps = residual_dps if bad_dps is None else np.where(bad_dps, 0.0, residual_dps)
             residual_dps = self.startup.process(columns["time_s"], held_dps, ~bad_input if bad_input.any() else None)
             if self._widen_for_offset:
-                sigma_dps = self.startup.widen(columns["time_s"], sigma_dps)
+                sigma_dps = self.startup.widen(sigma_dps)
         if bad_input.any():
             rate_dps, self._last_rate_dps = stage_skipping(self.kalman, residual_dps, bad_input, bad_dps,
                                                            self._last_rate_dps)

@@ -72,6 +72,7 @@ class StartupOffset:
         self._sums = np.zeros((self.n_bins, 3))
         self._counts = np.zeros(self.n_bins, dtype=np.int64)
         self._diff_sq, self._last = np.zeros(3), None
+        self._end_row = 0
 
     @property
     def done(self) -> bool:
@@ -84,19 +85,26 @@ class StartupOffset:
         ``valid`` (n,) marks the rows that may enter the window's mean (flagged input does not).
         """
         time_s = np.asarray(time_s, dtype=np.float64)
+        self._end_row = 0  # of this chunk: the rows from it on have the offset removed
         if len(time_s) == 0:
             return rate_dps
         if self.offset_dps is None:
+            # a stamp that is no time (NaN, inf: a flagged row) neither starts nor ends the window
+            finite = np.isfinite(time_s)
             if self.start_time_s is None:
-                self.start_time_s = float(time_s[0])
+                if not finite.any():
+                    self._end_row = len(time_s)
+                    return rate_dps
+                self.start_time_s = float(time_s[np.argmax(finite)])
             elapsed_s = time_s - self.start_time_s
-            in_window = elapsed_s < self.still_s
-            n_in = int(np.count_nonzero(in_window))  # time increases: the window is a prefix
+            past = np.flatnonzero(finite & (elapsed_s >= self.still_s))
+            n_in = int(past[0]) if len(past) else len(time_s)
+            self._end_row = n_in
             if n_in:
-                bins = np.minimum((elapsed_s[:n_in] // BIN_S).astype(np.int64), self.n_bins - 1)
-                rows = slice(None) if valid is None else np.asarray(valid[:n_in], dtype=bool)
-                np.add.at(self._sums, bins[rows], rate_dps[:n_in][rows])
-                np.add.at(self._counts, bins[rows], 1)
+                rows = finite[:n_in] if valid is None else finite[:n_in] & np.asarray(valid[:n_in], dtype=bool)
+                bins = np.clip((elapsed_s[:n_in][rows] // BIN_S).astype(np.int64), 0, self.n_bins - 1)
+                np.add.at(self._sums, bins, rate_dps[:n_in][rows])
+                np.add.at(self._counts, bins, 1)
                 self._add_differences(rate_dps[:n_in][rows])
             if n_in == len(time_s):
                 return rate_dps
@@ -106,13 +114,13 @@ class StartupOffset:
             return out
         return rate_dps - self.offset_dps
 
-    def widen(self, time_s: np.ndarray, sigma_dps: np.ndarray) -> np.ndarray:
-        """``sigma_dps`` (n, 3) with the offset's noise added in quadrature on the rows it was removed from."""
+    def widen(self, sigma_dps: np.ndarray) -> np.ndarray:
+        """``sigma_dps`` (n, 3) of the chunk ``process`` last had, with the offset's noise added in quadrature on
+        the rows it was removed from."""
         if self.offset_dps is None:
             return sigma_dps
-        after = np.asarray(time_s, dtype=np.float64) - self.start_time_s >= self.still_s
         out = sigma_dps.copy()
-        out[after] = np.sqrt(out[after] ** 2 + self.noise_var_dps2)
+        out[self._end_row:] = np.sqrt(out[self._end_row:] ** 2 + self.noise_var_dps2)
         return out
 
     def _add_differences(self, rate_dps: np.ndarray) -> None:

@@ -13,9 +13,10 @@ Lost samples and glitches:
   the gap exactly; no restart divides an error by the gap, so no loss pattern can make a feature
   diverge;
 - a row whose temperature is impossible (outside the sensor's range, or a jump no thermal mass
-  allows: ``gyronet.recordings.guard``) or that holds a NaN is a lost sample too: it never enters a filter's
-  state and its features are the prediction, so a glitch corrupts its own row only, flagged in
-  ``rejected``. A step that later samples confirm restarts every filter.
+  allows: ``gyronet.recordings.guard``) or that holds a NaN (or a stamp that is no time) is a lost
+  sample too: it never enters a filter's state and its features are the prediction, so a glitch
+  corrupts its own row only, flagged in ``rejected``. A step that later samples confirm restarts
+  every filter.
 
 Rates: the filters run at a steady sample clock estimated from the stamps (``gyronet.recordings.rate_watch``):
 jitter and drift of the stamps are averaged out, and where the rate changes the filters are
@@ -181,13 +182,16 @@ class FeatureExtractor:
     def _process_block(self, time_s: np.ndarray, columns: Mapping[str, np.ndarray], out: np.ndarray) -> np.ndarray:
         """``process`` on rows of one sample period."""
         n = len(time_s)
+        clock_from = 0  # the first row with a clock: the stream's first finite stamp
         if self._start_time_s is None:
-            self._start_time_s = float(time_s[0])
+            clock_from = int(np.argmax(np.isfinite(time_s))) if np.isfinite(time_s).any() else n
+            self._start_time_s = float(time_s[clock_from]) if clock_from < n else None
         source = {k: np.asarray(columns[k], dtype=np.float64) for k in self.columns if k != "time_s"}
         others = [v for k, v in source.items() if k != "temp_c"]
-        finite = np.isfinite(np.column_stack(others)).all(1) if others else True
+        # a stamp that is no time (NaN, inf) is a lost sample as a NaN reading is
+        finite = np.isfinite(time_s) & (np.isfinite(np.column_stack(others)).all(1) if others else True)
         accepted, step = self.guard.check(time_s, source["temp_c"], finite)
-        carry = self._last_row
+        carry, carry_time_s = self._last_row, self._last_time_s
         if accepted.all():
             self._run_accepted(time_s, source, step, out)
         else:
@@ -196,7 +200,7 @@ class FeatureExtractor:
                 out[keep] = self._run_accepted(time_s[keep], {k: v[keep] for k, v in source.items()}, step[keep],
                                                np.empty((len(keep), len(self.specs))))
             self._fill_rejected(out, accepted, carry, source)
-        self._time_features(time_s, out)
+        self._time_features(time_s[clock_from:], out[clock_from:], accepted[clock_from:], carry_time_s)
         self.rejected = ~accepted
         self.n_rejected += n - int(accepted.sum())
         return out
@@ -210,13 +214,14 @@ class FeatureExtractor:
     def process_row(self, time_s: float, values: Mapping[str, float]) -> tuple[list[float], bool]:
         """One sample in plain floats (``values``: at least ``self.columns`` but ``time_s``): its features and
         whether it was rejected. ``process`` on a one-row chunk, without arrays (``self.rejected`` is not set)."""
-        if self._start_time_s is None:
+        if self._start_time_s is None and math.isfinite(time_s):
             self._start_time_s = time_s
         change = self.watch.step(time_s)
         if change is not None:
             self._follow(change)
         temp_c = values["temp_c"]
-        valid = in_sensor_range(temp_c) and all(math.isfinite(values[k]) for k in self._row_columns)
+        valid = in_sensor_range(temp_c) and math.isfinite(time_s) and \
+            all(math.isfinite(values[k]) for k in self._row_columns)
         accepted, step = self.guard.step(time_s, temp_c, valid)
         if accepted:
             gap_s = None if self._last_time_s is None else time_s - self._last_time_s
@@ -231,15 +236,29 @@ class FeatureExtractor:
             row = list(self._last_row)
         else:
             row = power_on_rows(self.specs, {k: np.array([values[k]]) for k in self._row_columns})[0].tolist()
-        for i in self._time_index:
-            row[i] = float(self._time_feature(i, np.array([time_s]))[0])
+        if self._start_time_s is not None:
+            # a stamp that is no time: the last accepted row's, as in a block
+            clock_s = time_s if math.isfinite(time_s) else \
+                self._start_time_s if self._last_time_s is None else self._last_time_s
+            for i in self._time_index:
+                row[i] = float(self._time_feature(i, np.array([clock_s]))[0])
         self.n_rejected += not accepted
         return row, not accepted
 
-    def _time_features(self, time_s: np.ndarray, out: np.ndarray) -> None:
-        """Time features at every row's own time (rejected rows too: the clock is not in doubt)."""
+    def _time_features(self, time_s: np.ndarray, out: np.ndarray, accepted: np.ndarray,
+                       carry_time_s: float | None) -> None:
+        """Time features at every row's own time (rejected rows too: the clock is not in doubt), but where the
+        stamp is no time (NaN, inf): there at the last accepted row's (``carry_time_s``: before this block)."""
+        if not self._time_index or self._start_time_s is None:
+            return
+        clock_s = time_s
+        if not np.isfinite(time_s).all():
+            previous = np.maximum.accumulate(np.where(accepted, np.arange(len(time_s)), -1))
+            last_good_s = np.where(previous >= 0, time_s[np.maximum(previous, 0)],
+                                   self._start_time_s if carry_time_s is None else carry_time_s)
+            clock_s = np.where(np.isfinite(time_s), time_s, last_good_s)
         for i in self._time_index:
-            out[:, i] = self._time_feature(i, time_s)
+            out[:, i] = self._time_feature(i, clock_s)
 
     def _time_feature(self, i: int, time_s: np.ndarray) -> np.ndarray:
         """Time feature ``i`` at ``time_s``: hours since the start, or a decay with ``tau_s`` from it."""

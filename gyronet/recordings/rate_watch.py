@@ -189,8 +189,9 @@ class RateWatch:
         since = self._since + np.arange(1, len(time_s) + 1)
         has_span = since > SPAN
         start = np.clip(ends - SPAN, 0, None)
-        span_s = (times[ends] - times[start]) / SPAN
-        intervals = np.diff(times)
+        with np.errstate(invalid="ignore"):  # a stamp that is no time: NaN spans and intervals, which vote nothing
+            span_s = (times[ends] - times[start]) / SPAN
+            intervals = np.diff(times)
         high_s, low_s = self.period_s * (1.0 + TOLERANCE), self.period_s * (1.0 - TOLERANCE)
         # intervals above / below the band among the SPAN ending at each row: differences of running counts
         above = np.concatenate([[0], np.cumsum(intervals > high_s)])
