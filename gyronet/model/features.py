@@ -182,10 +182,9 @@ class FeatureExtractor:
     def _process_block(self, time_s: np.ndarray, columns: Mapping[str, np.ndarray], out: np.ndarray) -> np.ndarray:
         """``process`` on rows of one sample period."""
         n = len(time_s)
-        clock_from = 0  # the first row with a clock: the stream's first finite stamp
-        if self._start_time_s is None:
-            clock_from = int(np.argmax(np.isfinite(time_s))) if np.isfinite(time_s).any() else n
-            self._start_time_s = float(time_s[clock_from]) if clock_from < n else None
+        clock_from = 0 if self._start_time_s is not None else int(np.argmax(np.append(np.isfinite(time_s), True)))
+        if clock_from < n and self._start_time_s is None:  # the clock starts at the first finite stamp
+            self._start_time_s = float(time_s[clock_from])
         source = {k: np.asarray(columns[k], dtype=np.float64) for k in self.columns if k != "time_s"}
         others = [v for k, v in source.items() if k != "temp_c"]
         # a stamp that is no time (NaN, inf) is a lost sample as a NaN reading is
@@ -236,19 +235,17 @@ class FeatureExtractor:
             row = list(self._last_row)
         else:
             row = power_on_rows(self.specs, {k: np.array([values[k]]) for k in self._row_columns})[0].tolist()
-        if self._start_time_s is not None:
-            # a stamp that is no time: the last accepted row's, as in a block
-            clock_s = time_s if math.isfinite(time_s) else \
-                self._start_time_s if self._last_time_s is None else self._last_time_s
-            for i in self._time_index:
-                row[i] = float(self._time_feature(i, np.array([clock_s]))[0])
+        if self._time_index:  # as in a block
+            one = np.array([row])
+            self._time_features(np.array([time_s]), one, np.array([accepted]), self._last_time_s)
+            row = one[0].tolist()
         self.n_rejected += not accepted
         return row, not accepted
 
     def _time_features(self, time_s: np.ndarray, out: np.ndarray, accepted: np.ndarray,
                        carry_time_s: float | None) -> None:
-        """Time features at every row's own time (rejected rows too: the clock is not in doubt), but where the
-        stamp is no time (NaN, inf): there at the last accepted row's (``carry_time_s``: before this block)."""
+        """Time features at every row's own time, a rejected row's too, but for a stamp that is no time (NaN, inf):
+        the last accepted row's (``carry_time_s``: before these rows)."""
         if not self._time_index or self._start_time_s is None:
             return
         clock_s = time_s
@@ -257,14 +254,10 @@ class FeatureExtractor:
             last_good_s = np.where(previous >= 0, time_s[np.maximum(previous, 0)],
                                    self._start_time_s if carry_time_s is None else carry_time_s)
             clock_s = np.where(np.isfinite(time_s), time_s, last_good_s)
-        for i in self._time_index:
-            out[:, i] = self._time_feature(i, clock_s)
-
-    def _time_feature(self, i: int, time_s: np.ndarray) -> np.ndarray:
-        """Time feature ``i`` at ``time_s``: hours since the start, or a decay with ``tau_s`` from it."""
-        elapsed_s = time_s - self._start_time_s
-        tau_s = self.specs[i].get("tau_s")
-        return np.exp(-elapsed_s / float(tau_s)) if tau_s else elapsed_s / 3600.0
+        elapsed_s = clock_s - self._start_time_s
+        for i in self._time_index:  # hours since the start, or a decay with tau_s from it
+            tau_s = self.specs[i].get("tau_s")
+            out[:, i] = np.exp(-elapsed_s / float(tau_s)) if tau_s else elapsed_s / 3600.0
 
     def _run_accepted(self, time_s: np.ndarray, source: Mapping[str, np.ndarray], step: np.ndarray,
                       out: np.ndarray) -> np.ndarray:
