@@ -243,6 +243,18 @@ def test_c_takes_a_stamp_that_is_no_time_as_python_does_in_and_after_the_start_u
 
 
 @needs_cc
+def test_a_start_up_window_without_a_good_sample_removes_nothing_in_c_and_python(bundles, paper_csv, tmp_path):
+    columns = {k: v[:2000] for k, v in _columns(paper_csv).items()}
+    columns["temp_c"][:700] = np.nan  # the first 350 s: every window sample flagged
+    exe, summary = _build(bundles["kalman"], tmp_path)
+    py = _python(bundles["kalman"], columns, still_s=300.0)
+    assert np.isfinite(py.rate_dps).all()
+    plain = _python(bundles["kalman"], columns)
+    np.testing.assert_array_equal(py.rate_dps, plain.rate_dps)
+    _check(_run_c(exe, columns, [], tmp_path, still_s=300.0), py)
+
+
+@needs_cc
 def test_state_size_and_symbols(bundles, tmp_path):
     """sizeof(gyronet_state) is the size write_c reports; the object needs no heap and no libm but expf/fabsf/sqrtf."""
     exe, summary = _build(bundles["kalman"], tmp_path)

@@ -139,6 +139,10 @@ class StartupOffset:
 
     def _finish(self) -> None:
         counts = self._counts
+        if not counts.any():  # every window sample flagged: nothing measured, nothing removed (as in the C export)
+            log.warning("no good sample in the start-up window (startup.still_s=%g): no offset is removed", self.still_s)
+            self.offset_dps, self.noise_var_dps2 = np.zeros(3), np.zeros(3)
+            return
         filled = counts > 0
         means = self._sums[filled] / counts[filled, None]
         median = np.median(means, axis=0)
