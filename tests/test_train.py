@@ -24,7 +24,10 @@ def _train(tmp_path, *overrides, console=None):
     assert proc.returncode == 0, proc.stderr[-3000:]
     if console is not None:
         console.append(proc.stdout)
-    return json.loads((tmp_path / "report.json").read_text())
+    def no_nan(constant: str):
+        raise AssertionError(f"report.json holds {constant}, which strict JSON does not allow")
+
+    return json.loads((tmp_path / "report.json").read_text(), parse_constant=no_nan)
 
 
 def test_lr_schedule_warms_up_then_decays():

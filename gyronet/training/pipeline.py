@@ -5,7 +5,6 @@ the same run works from a test or a notebook without Hydra.
 """
 from __future__ import annotations
 
-import json
 import logging
 from pathlib import Path
 from typing import Any, Callable, Mapping, Sequence
@@ -13,6 +12,8 @@ from typing import Any, Callable, Mapping, Sequence
 import numpy as np
 import torch
 
+from gyronet.allan.report import report_to_json
+from gyronet.atomic import atomic_output
 from gyronet.bundle.compensator import Compensator, build_meta
 from gyronet.bundle.io import save_bundle
 from gyronet.recordings.data import AXES, load_recording, load_truth, truth_path
@@ -183,7 +184,8 @@ def train_run(data: DriftData, model: torch.nn.Module, optim: Callable | None, o
         metrics.update(_eval_metrics(result, prefix="eval" if len(evaluations) == 1 else f"eval_{Path(path).stem}"))
     if writer is not None:
         _log_run(writer, metrics, evaluations, hparams or model_info(model))
-    (out_dir / "report.json").write_text(json.dumps(_jsonable(report), indent=2) + "\n")
+    with atomic_output(out_dir / "report.json") as tmp:  # strict JSON (a figure with no value is null), whole or not
+        tmp.write_text(report_to_json(report))
     return metrics
 
 
