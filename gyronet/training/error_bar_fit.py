@@ -94,19 +94,22 @@ def white_noise_var(time_s: np.ndarray, y: np.ndarray, block_s: float = BLOCK_S)
 
 def held_out_stats(model: torch.nn.Module, parts: Sequence[torch.nn.Module] | None, time_s: np.ndarray,
                    x: np.ndarray, y: np.ndarray, x_train: np.ndarray,
-                   adjust: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None) -> dict[str, np.ndarray]:
+                   adjust: Callable[[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]] | None = None
+                   ) -> dict[str, np.ndarray]:
     """Held-out 60 s blocks: residual (measured - predicted), members' spread, box term, and the noise variance.
 
     ``time_s, x, y`` are held-out samples at the full rate; ``model`` and ``parts`` the fits validated
     on them, before any refit; ``x_train`` the features they were trained on; ``adjust(time_s,
-    residual)`` the residual as deployed (a held-out run's start-up offset removed, ``RunsData.val_adjust``).
+    residual)`` the rows scored and the residual as deployed (a held-out run's start-up offset removed, the
+    window's own rows left out: ``RunsData.val_adjust``).
     """
     from gyronet.training.steps import predict
 
     bar = shape_of(model, parts, x_train)
     residual = y - predict(model, x)
     if adjust is not None:
-        residual = adjust(time_s, residual)
+        scored, residual = adjust(time_s, residual)
+        time_s, x, y, residual = time_s[scored], x[scored], y[scored], residual[scored]
     return {"residual": residual_block_means(time_s, residual, BLOCK_S),
             "spread": residual_block_means(time_s, bar.spread(x), BLOCK_S),
             "outside": residual_block_means(time_s, bar.outside_dps(x), BLOCK_S),

@@ -81,11 +81,12 @@ class RunsData(TrainingData):
         return RunsData(self.runs, self.features, self.block_s, self.static_rate_dps, index, self.run_offsets,
                         self.val_startup_s)
 
-    def val_adjust(self, time_s: np.ndarray, residual: np.ndarray) -> np.ndarray:
-        """The held-out residual as a start-up offset over the first ``val_startup_s`` s would leave it."""
+    def val_adjust(self, time_s: np.ndarray, residual: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The held-out residual as a start-up offset over the first ``val_startup_s`` s would leave it, and the
+        rows that offset applies to (those after the window; the window's own are zero-mean by construction)."""
         if self.held_out is None or self.val_startup_s <= 0:
-            return residual
-        return minus_startup_offset(time_s, residual, self.val_startup_s)
+            return np.ones(len(time_s), dtype=bool), residual
+        return time_s >= time_s[0] + self.val_startup_s, minus_startup_offset(time_s, residual, self.val_startup_s)
 
     @property
     def n_runs(self) -> int:

@@ -125,8 +125,9 @@ def held_out_residuals(model: nn.Module, data: DriftData) -> np.ndarray:
     time_s, x, y = data.val_full
     residual = y - predict(model, x)
     startup_s = deployed_window_s(data)
-    if startup_s > 0 and data.val_path:
-        residual = minus_startup_offset(time_s, residual, startup_s)
+    if startup_s > 0 and data.val_path:  # scored after the window, whose own rows the offset zeroes
+        scored = time_s >= time_s[0] + startup_s
+        time_s, residual = time_s[scored], minus_startup_offset(time_s, residual, startup_s)[scored]
     elif startup_s > 0:
         residual = residual - _startup_residual(model, data, startup_s)
     return residual_block_means(time_s, residual, 60.0)

@@ -42,7 +42,8 @@ def validation_metrics(model: torch.nn.Module, data: DriftData, full_rate: bool 
         time_s, x, y = data.val.time_s, data.val.x, data.val.y
     residual = y - predict(model, x)
     if getattr(data, "val_adjust", None) is not None:  # e.g. the held-out run's start-up offset (gyronet.training.runs)
-        residual = data.val_adjust(time_s, residual)
+        scored, residual = data.val_adjust(time_s, residual)
+        time_s, residual = time_s[scored], residual[scored]
     rmse = block_rmse(time_s, residual, 60.0)
     metrics = {f"val/rmse_{a}_dps": float(v) for a, v in zip(AXES, rmse)}
     metrics["val/rmse_dps"] = float(np.mean(rmse))
