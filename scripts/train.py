@@ -23,13 +23,15 @@ def main(cfg: DictConfig) -> float:
                                  model)
     writer = make_writer(cfg.logger.log_dir)
     hparams = {k: v for k, v in OmegaConf.to_container(cfg.model, resolve=True).items() if k != "_target_"}
-    metrics = train_run(data, model, instantiate(cfg.optim), HydraConfig.get().runtime.output_dir,
-                        OmegaConf.to_container(cfg.train), seed=cfg.seed,
-                        kalman_cfg=OmegaConf.to_container(cfg.kalman), eval_paths=list(cfg.eval.paths),
-                        eval_block_s=cfg.eval.block_s, writer=writer,
-                        hparams={"model": cfg.model._target_.rsplit(".", 1)[-1], **hparams,
-                                 "lr": cfg.optim.get("lr", 0.0), "seed": cfg.seed})
-    writer.close()
+    try:  # a failed job in a sweep (scored inf) must not leave its writer open
+        metrics = train_run(data, model, instantiate(cfg.optim), HydraConfig.get().runtime.output_dir,
+                            OmegaConf.to_container(cfg.train), seed=cfg.seed,
+                            kalman_cfg=OmegaConf.to_container(cfg.kalman), eval_paths=list(cfg.eval.paths),
+                            eval_block_s=cfg.eval.block_s, writer=writer,
+                            hparams={"model": cfg.model._target_.rsplit(".", 1)[-1], **hparams,
+                                     "lr": cfg.optim.get("lr", 0.0), "seed": cfg.seed})
+    finally:
+        writer.close()
     return metrics["val/rmse_dps"]
 
 

@@ -2,5 +2,5 @@
 
 ``compensator.Compensator`` applies a bundle causally, offline (``offline``) and live; ``startup``
 computes the run's own offset from its first still seconds. May import: ``gyronet.errors``,
-``gyronet.atomic``, ``gyronet.recordings``, ``gyronet.allan``, ``gyronet.model.rbf``.
+``gyronet.atomic``, ``gyronet.recordings``, ``gyronet.allan``, ``gyronet.model``.
 """

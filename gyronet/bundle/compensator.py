@@ -151,7 +151,9 @@ class Compensator:
         """Estimate the run's offset over the first ``still_s`` s and apply it from then on (0: off)."""
         from gyronet.bundle.startup import StartupOffset
 
-        self.startup = StartupOffset(still_s, motion_dps, static_rate_dps or (0.0, 0.0, 0.0)) if still_s else None
+        if static_rate_dps is None or not len(static_rate_dps):  # (a list or an array: no truth test)
+            static_rate_dps = (0.0, 0.0, 0.0)
+        self.startup = StartupOffset(still_s, motion_dps, static_rate_dps) if still_s else None
         calibrated_s = 0.0 if self.error_bar is None else self.error_bar.startup_s
         # a bar calibrated on held-out runs with their start-up offsets has the offset's noise in its floor
         self._widen_for_offset = self.startup is not None and self.error_bar is not None and not calibrated_s

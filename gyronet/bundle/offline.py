@@ -10,7 +10,6 @@ import numpy as np
 from gyronet.bundle.compensator import Compensated, Compensator
 from gyronet.recordings.data import AXES, GYRO_COLUMNS, Recording, load_recording, write_recording
 from gyronet.atomic import atomic_output
-from gyronet.errors import RecordingError
 from gyronet.recordings.fastcsv import write_csv
 
 log = logging.getLogger(__name__)
@@ -63,11 +62,7 @@ def compensate_recording(compensator: Compensator, recording: Recording) -> Comp
 def compensate_as_deployed(compensator: Compensator, recording: Recording, resample: bool = False) -> Compensated:
     """A whole recording as ``compensate.py`` runs it: a rate not the bundle's refused (or, with
     ``resample``, adopted: ``use_input_rate``), from a fresh state, a start-up window required to end."""
-    try:
-        fs_hz = recording.fs_hz
-    except ValueError:
-        raise RecordingError(f"{recording.path}: '# fs_hz={recording.meta.get('fs_hz')}' is not a rate in Hz") from None
-    compensator.use_input_rate(fs_hz, resample, str(recording.path))
+    compensator.use_input_rate(recording.fs_hz, resample, str(recording.path))  # a bad # fs_hz= is one line there
     compensator.row_name = recording.line_of
     out = compensate_recording(compensator, recording)
     if compensator.startup is not None:

@@ -2,5 +2,5 @@
 flight-stack parameters (``params``, ``as_flown``: PX4, ArduPilot) and C for microcontrollers.
 
 May import: ``gyronet.errors``, ``gyronet.atomic``, ``gyronet.recordings``, ``gyronet.allan``,
-``gyronet.figures``, ``gyronet.model.rbf``, ``gyronet.bundle``.
+``gyronet.figures``, ``gyronet.model``, ``gyronet.bundle``.
 """

@@ -117,8 +117,7 @@ def write_c(bundle_dir: Path, out_dir: Path) -> dict[str, Any]:
     centre, scale = _probe_box(module, meta)
     model = model_code(module, scale, centre, model_path)
     bar = error_bar_code(compensator.error_bar, len(specs), f"{bundle_dir}/meta.json")
-    kalman = no_kalman() if compensator.kalman is None else kalman_code(compensator.kalman.to_dict(),
-                                                                         f"{bundle_dir}/kalman.json")
+    kalman = no_kalman() if compensator.kalman is None else kalman_code(compensator.kalman.to_dict())
     fields, state_bytes = _state({"n_features": len(specs), "n_filter": feats.n_filter, "n_play": feats.n_play,
                                   "n_kalman": kalman.n_states, "n_kalman_p": kalman.n_covariance})
     low, high = compensator.temp_range_c

@@ -21,7 +21,7 @@ def draw_sensor(sensor_seed: int, swing_dps: Any = None, distribution: str = "de
         Seed of this sensor; the thermal history and the noise never touch this stream.
     distribution
         ``default``: the sensors every table of docs/results uses (described below), bit for bit as ever.
-        ``survey``: the same sensor made harder, :func:`gyronet.sim.survey_sensor.draw_survey_sensor`.
+        ``survey``: the same sensor made harder, :func:`gyronet.sim.survey_sensor.widen`.
     swing_dps
         Peak-to-peak static bias over -40..60 degC per axis, deg/s; by default drawn in
         [1.2, 3.8] deg/s. The cubic and knee coefficients are scaled to reach it.

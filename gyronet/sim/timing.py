@@ -9,19 +9,10 @@ every kept sample. Every function returns new column dicts and never touches its
 from __future__ import annotations
 
 import logging
-from typing import Mapping
 
 import numpy as np
 
 log = logging.getLogger(__name__)
-
-Columns = Mapping[str, np.ndarray]
-
-
-def pick_rows(recording: Columns, truth: Columns, rows: np.ndarray) -> tuple[dict, dict]:
-    """The recording and truth at ``rows`` (sorted, unique indices of the simulation)."""
-    rows = np.asarray(rows)
-    return {k: v[rows] for k, v in recording.items()}, {k: v[rows] for k, v in truth.items()}
 
 
 def rate_change_rows(n: int, step_before: int, step_after: int, at_fraction: float) -> np.ndarray:

@@ -2,5 +2,5 @@
 
 ``pipeline`` runs one training end to end (fit, bundle, evaluate, log); ``fleet`` one bundle per
 unit. May import: ``gyronet.errors``, ``gyronet.atomic``, ``gyronet.recordings``, ``gyronet.allan``,
-``gyronet.figures``, ``gyronet.model.rbf``, ``gyronet.bundle``.
+``gyronet.figures``, ``gyronet.model``, ``gyronet.bundle``.
 """

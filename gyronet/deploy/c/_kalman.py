@@ -57,7 +57,7 @@ def _blocks(stage: Any, name: str) -> list[np.ndarray]:
     return [matrix[s, s] for s in stage._slices]
 
 
-def kalman_code(kalman: Mapping[str, Any], source: str) -> KalmanCode:
+def kalman_code(kalman: Mapping[str, Any]) -> KalmanCode:
     """C constants and body for the ``kalman.json`` content ``kalman``."""
     from gyronet.model.kalman import KalmanStage
 

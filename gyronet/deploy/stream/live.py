@@ -19,7 +19,6 @@ import contextlib
 import gc
 import importlib
 import logging
-import signal
 import sys
 import time
 from pathlib import Path
@@ -229,15 +228,6 @@ def _steady_runtime(realtime_priority: int | None = None, switch_interval_s: flo
         restore_scheduler()
         sys.setswitchinterval(previous_s)
         gc.unfreeze()
-
-
-def interrupt_on_sigterm() -> None:
-    """Make SIGTERM stop a run the way Ctrl-C does (kept for old callers: prefer ``stop_on_signals``)."""
-
-    def _raise(signum, frame):
-        raise KeyboardInterrupt
-
-    signal.signal(signal.SIGTERM, _raise)
 
 
 def _start_lpbus(opened, port: str, lpbus: LpBusSetup, compensator: Compensator, resample: bool,

@@ -79,11 +79,3 @@ def fields(primary_gyro: int = 0) -> tuple[LpBusField, ...]:
 
 
 OUTPUT_BITS = (1 << 17) - 1
-
-
-def check_rate(rate: float) -> int:
-    """``rate`` as the int the sensor takes (ValueError when the IG1 has no such rate)."""
-    for value in RATES_HZ:
-        if abs(value - rate) < 1e-9:
-            return value
-    raise ValueError(f"IG1 sensors stream at {', '.join(map(str, RATES_HZ))} Hz, not {rate:g} Hz")

@@ -35,7 +35,6 @@ GENERATIONS = ("legacy", "ig1")
 BIT_16BIT_MODE = lpbus_legacy.BIT_16BIT_MODE
 TICKS_PER_S = 400.0
 FIELDS: tuple[LpBusField, ...] = lpbus_legacy.FIELDS  # the legacy table (kept for old callers)
-FIELDS_BY_NAME = {f.name: f for f in FIELDS}
 DEFAULT_FIELDS = ("gyro", "acc", "temperature")
 
 
