@@ -23,7 +23,7 @@ from gyronet.training.axis_lag import lagged_specs
 
 ROOT = Path(__file__).resolve().parents[1]
 CC = shutil.which("cc") or shutil.which("gcc")
-CFLAGS = ["-std=c99", "-Wall", "-Wextra", "-Werror", "-pedantic", "-O2"]
+CFLAGS = ["-std=c99", "-Wall", "-Wextra", "-Wdouble-promotion", "-Werror", "-pedantic", "-O2"]  # float code stays float
 TOL_DPS = 1e-4
 AUX = "vdd_v"
 
@@ -252,6 +252,15 @@ def test_a_start_up_window_without_a_good_sample_removes_nothing_in_c_and_python
     plain = _python(bundles["kalman"], columns)
     np.testing.assert_array_equal(py.rate_dps, plain.rate_dps)
     _check(_run_c(exe, columns, [], tmp_path, still_s=300.0), py)
+
+
+@needs_cc
+def test_a_build_without_ieee_nan_arithmetic_is_refused_at_compile_time(bundle, tmp_path):
+    write_c(bundle, tmp_path / "c")
+    for flag in ("-ffast-math", "-Ofast", "-ffinite-math-only"):
+        built = subprocess.run([CC, "-std=c99", flag, "-c", str(tmp_path / "c" / "gyronet_compensator.c"), "-o",
+                                str(tmp_path / "x.o")], capture_output=True, text=True)
+        assert built.returncode != 0 and "needs IEEE NaN arithmetic" in built.stderr, (flag, built.stderr)
 
 
 @needs_cc

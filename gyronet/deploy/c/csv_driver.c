@@ -103,8 +103,9 @@ int main(int argc, char **argv)
     }
     fprintf(out, "gyro_x_dps,gyro_y_dps,gyro_z_dps,flags,drift_sigma_x_dps,drift_sigma_y_dps,drift_sigma_z_dps\n");
     for (i = 0; i < n; ++i) {
-        fprintf(out, "%.9g,%.9g,%.9g,%d,%.9g,%.9g,%.9g\n", results[3 * i], results[3 * i + 1], results[3 * i + 2],
-                flags[i], sigmas[3 * i], sigmas[3 * i + 1], sigmas[3 * i + 2]);
+        fprintf(out, "%.9g,%.9g,%.9g,%d,%.9g,%.9g,%.9g\n", (double)results[3 * i], (double)results[3 * i + 1],
+                (double)results[3 * i + 2], flags[i], (double)sigmas[3 * i], (double)sigmas[3 * i + 1],
+                (double)sigmas[3 * i + 2]);
     }
     fclose(out);
     free(rows);
