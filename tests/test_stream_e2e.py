@@ -318,9 +318,12 @@ def test_a_port_missing_at_start_is_an_error_unless_waited_for(bundle, tmp_path)
 
     missing = tmp_path / "no-such-sensor"
     started = time.monotonic()
+    import gc
+
     with pytest.raises(PortError, match="no-such-sensor.*reconnect.wait_at_start=true"):
         run_stream(bundle, str(missing), tmp_path / "live.csv")
     assert time.monotonic() - started < 30 and not (tmp_path / "live.csv").exists()
+    assert gc.get_freeze_count() == 0  # the refused set-up left the collector as it was
     summary = run_stream(bundle, str(missing), tmp_path / "live.csv", allan_every_s=0,
                          reconnect={"wait_at_start": True, "backoff_s": 0.05, "give_up_s": 0.2})
     assert summary["stopped"] == "port_gone" and summary["n_samples"] == 0

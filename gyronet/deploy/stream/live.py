@@ -124,25 +124,28 @@ def run_stream(bundle_dir: str | Path, port: str, output: str | Path, protocol: 
     # passes over them took milliseconds in the sample loop; collected first, before the port opens (~0.1 s)
     gc.collect()
     gc.freeze()
-    opened = None if wait_at_start else open_port_or_fail(
-        port, baud, read_timeout_s, hint="; pass reconnect.wait_at_start=true to wait for it")
-    sensor = None
-    if protocol == "lpbus" and lpbus is not None:  # issue 13: set the sensor up before the sample loop
-        sensor, parser = _start_lpbus(opened, port, lpbus, compensator, resample, check)
-    # a flood's frames (or lines) as columns, decoded at once: the chunk writer takes them as they are
-    parser.blocks = True
+    opened = out = None
     try:
+        opened = None if wait_at_start else open_port_or_fail(
+            port, baud, read_timeout_s, hint="; pass reconnect.wait_at_start=true to wait for it")
+        sensor = None
+        if protocol == "lpbus" and lpbus is not None:  # issue 13: set the sensor up before the sample loop
+            sensor, parser = _start_lpbus(opened, port, lpbus, compensator, resample, check)
+        # a flood's frames (or lines) as columns, decoded at once: the chunk writer takes them as they are
+        parser.blocks = True
         out = LiveWriter(output, bundle_dir)
-    except OutputError:
-        if opened is not None:
-            opened.close()
+        writer = _tb_writer(tb_dir) if tb_dir is not None and allan_every_s > 0 else None
+        allan = LiveAllan(writer, allan_every_s, float(compensator.meta["fs_hz"]), background=True) \
+            if allan_every_s > 0 else None
+        # a still sensor, as the Allan monitor assumes: its 60 s means held against their error bar
+        recalibration = LiveRecalibration(float((startup or {}).get("still_s") or 0.0), writer) \
+            if allan is not None and compensator.error_bar is not None else None
+    except BaseException:  # a refused set-up leaves the process as it found it: collector, port, output
+        gc.unfreeze()
+        for opened_thing in (out, opened):
+            if opened_thing is not None:
+                opened_thing.close()
         raise
-    writer = _tb_writer(tb_dir) if tb_dir is not None and allan_every_s > 0 else None
-    allan = LiveAllan(writer, allan_every_s, float(compensator.meta["fs_hz"]), background=True) \
-        if allan_every_s > 0 else None
-    # a still sensor, as the Allan monitor assumes: its 60 s means held against their error bar
-    recalibration = LiveRecalibration(float((startup or {}).get("still_s") or 0.0), writer) \
-        if allan is not None and compensator.error_bar is not None else None
     counter = FaultCounter()
     started = time.monotonic()
     stopped, failure = "port_gone", None
