@@ -63,6 +63,12 @@ def atomic_output(path: str | os.PathLike) -> Iterator[Path]:
     log.debug("wrote %s", path)
 
 
+def write_text(path: str | os.PathLike, text: str) -> None:
+    """``path`` holding ``text``, written whole or not at all (``atomic_output``)."""
+    with atomic_output(path) as tmp:
+        tmp.write_text(text)
+
+
 _FULL = {errno.ENOSPC, errno.EDQUOT, errno.EFBIG}
 
 

@@ -16,6 +16,7 @@ import logging
 from pathlib import Path
 
 from gyronet.analysis.rate_table import rate_table, to_markdown, training_rows
+from gyronet.atomic import write_text
 from gyronet.sim import simulate, write_simulation
 
 log = logging.getLogger(__name__)
@@ -54,8 +55,8 @@ def main() -> None:
         markdown += "\n\ntrain.py on the paper profile, held-out residual over the intact bundle's:\n" + "\n".join(
             f"- {name}: " + (got if isinstance(got, str) else " / ".join(f"{v:.2f}x" for v in got))
             for name, got in figures["train"].items())
-    (out / "rate_table.md").write_text(markdown + "\n")
-    (out / "rate_table.json").write_text(json.dumps(figures, indent=2))
+    write_text(out / "rate_table.md", markdown + "\n")
+    write_text(out / "rate_table.json", json.dumps(figures, indent=2))
     print(markdown)
 
 

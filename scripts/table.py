@@ -7,6 +7,7 @@ from pathlib import Path
 from omegaconf import DictConfig, OmegaConf
 
 from gyronet.analysis.table import PAPER_TABLE_1, held_out_paths, runs_to_markdown, table_rows, table_runs, to_markdown
+from gyronet.atomic import write_text
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # scripts/_cli.py, also when this file is run by path
 from _cli import command  # noqa: E402
@@ -28,8 +29,8 @@ def main(cfg: DictConfig) -> None:
         markdown, figures = runs_to_markdown(per_run), {"inputs": paths, "runs": per_run}
     output = Path(cfg.output)
     output.parent.mkdir(parents=True, exist_ok=True)
-    output.write_text(markdown)
-    output.with_suffix(".json").write_text(json.dumps({**figures, **options, "paper": PAPER_TABLE_1}, indent=2))
+    write_text(output, markdown)
+    write_text(output.with_suffix(".json"), json.dumps({**figures, **options, "paper": PAPER_TABLE_1}, indent=2))
     log.info("Table 1 on %s:\n%s", ", ".join(paths), markdown)
 
 

@@ -26,6 +26,7 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
+from gyronet.atomic import write_text
 from gyronet.bundle.offline import SIGMA_COLUMNS
 from gyronet.model.error_bar import BLOCK_S
 from gyronet.recordings.data import AXES, load_recording, load_truth
@@ -226,8 +227,8 @@ def write_table(rows: Sequence[Mapping[str, Any]], output: str | Path, config: M
     """``output`` (Markdown) and the same name with ``.json`` (every figure, and the config)."""
     output = Path(output)
     output.parent.mkdir(parents=True, exist_ok=True)
-    output.write_text(to_markdown(rows))
-    output.with_suffix(".json").write_text(json.dumps({"config": dict(config), "rows": list(rows)}, indent=2) + "\n")
+    write_text(output, to_markdown(rows))
+    write_text(output.with_suffix(".json"), json.dumps({"config": dict(config), "rows": list(rows)}, indent=2) + "\n")
     return output
 
 

@@ -145,7 +145,7 @@ def deployed_window_s(data: DriftData) -> float:
         return startup_s
     time_s, temp_c = data.recording.time_s, data.recording.temp_c
     low, high = data.temp_range_c
-    share = (float(np.median(temp_c[time_s < time_s[0] + startup_s])) - low) / max(high - low, 1e-9)  # a glitch: one row
+    share = (float(np.nanmedian(temp_c[time_s < time_s[0] + startup_s])) - low) / max(high - low, 1e-9)  # a glitch row is NaN
     return startup_s if EDGE_SHARE <= share <= 1.0 - EDGE_SHARE else 0.0
 
 

@@ -42,6 +42,7 @@ from typing import Any, Callable, Mapping
 import numpy as np
 import torch
 
+from gyronet.atomic import write_text
 from gyronet.recordings.data import AXES
 from gyronet.training.dataset import load_cached
 from gyronet.errors import GyronetError
@@ -217,13 +218,13 @@ def diagnose(data_options: Mapping[str, Any], make_model: Callable[[int], torch.
         "final": {"inputs": stage.data.feature_names, "val_rmse_dps": stage.val_rmse()},
     }
     out_dir.mkdir(parents=True, exist_ok=True)
-    (out_dir / "diagnosis.json").write_text(json.dumps(diagnosis, indent=2) + "\n")
+    write_text(out_dir / "diagnosis.json", json.dumps(diagnosis, indent=2) + "\n")
     details = {"options": asdict(options), "n_blocks": len(rows), "n_blocks_outside": n_all - len(rows),
                "rounds": rounds, "stages": [{"inputs": s.data.feature_names, "features": s.data.features,
                                              "metrics": s.metrics, "held_out_dps": s.held_out}
                                             for s in stages]}
     write_report(out_dir, diagnosis, details, rows, stages, plots=plots)
     details["runtime_s"] = time.monotonic() - started
-    (out_dir / "diagnosis_details.json").write_text(json.dumps(_jsonable(details), indent=2) + "\n")
+    write_text(out_dir / "diagnosis_details.json", json.dumps(_jsonable(details), indent=2) + "\n")
     log.info("diagnosis done in %.1f s: %d effect(s)", details["runtime_s"], len(effects))
     return diagnosis

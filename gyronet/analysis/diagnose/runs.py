@@ -30,6 +30,7 @@ from typing import Any, Callable, Mapping, Sequence
 import numpy as np
 import torch
 
+from gyronet.atomic import write_text
 from gyronet.recordings.data import AXES
 from gyronet.analysis.diagnose.options import DiagnoseOptions
 from gyronet.analysis.diagnose.advice import orientation_label, record_advice, runs_advice
@@ -238,7 +239,7 @@ def diagnose_runs(paths: Sequence[str], data_options: Mapping[str, Any], make_mo
                  "final": {"inputs": stage.data.feature_names, "val_rmse_dps": stage.val_rmse()},
                  "runs": stage.folds, "note": NOTE}
     out_dir.mkdir(parents=True, exist_ok=True)
-    (out_dir / "diagnosis.json").write_text(json.dumps(_jsonable(diagnosis), indent=2) + "\n")
+    write_text(out_dir / "diagnosis.json", json.dumps(_jsonable(diagnosis), indent=2) + "\n")
     orientations = _orientations(recordings)
     advice = runs_advice(orientations)
     union_c = (min(float(r.temp_c.min()) for r in recordings), max(float(r.temp_c.max()) for r in recordings))
@@ -250,7 +251,7 @@ def diagnose_runs(paths: Sequence[str], data_options: Mapping[str, Any], make_mo
                "rounds": rounds, "stages": [{"inputs": s.data.feature_names, "run_offsets": s.data.run_offsets,
                                              "metrics": s.metrics, "folds": s.folds} for s in stages],
                "next": [a.to_dict() for a in advice]}
-    (out_dir / "diagnosis_details.json").write_text(json.dumps(_jsonable(details), indent=2) + "\n")
+    write_text(out_dir / "diagnosis_details.json", json.dumps(_jsonable(details), indent=2) + "\n")
     write_runs_report(out_dir, diagnosis, details, orientations, advice)
     return diagnosis
 
