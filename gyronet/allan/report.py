@@ -11,14 +11,13 @@ import numpy as np
 from gyronet.allan.deviation import log_taus, oadev
 from gyronet.allan.noise import MIN_CLUSTERS, noise_parameters
 from gyronet.errors import GyronetError
+from gyronet.recordings.data import GAP_FACTOR
 from gyronet.recordings.guard import GYRO_RANGE_DPS, bad_gyro
 
 # the name allan_report warned under before gyronet/allan was split into modules
 log = logging.getLogger("gyronet.allan")
 
 AXES = ("x", "y", "z")
-# A gap is a sample interval over 1.5 nominal intervals: a break in the record (CONTRACT.md 1).
-GAP_FACTOR = 1.5
 
 
 def continuous_segments(time_s: np.ndarray, fs_hz: float) -> list[tuple[int, int]]:

@@ -33,7 +33,6 @@ PAPER_FEATURES: list[dict[str, Any]] = [
     {"kind": "product"},
 ]
 
-GAP_FACTOR = 1.5  # an interval longer than this many sample periods is a gap: lost samples
 PRIOR_TEMP_C = 25.0  # the temperature assumed for rejected rows before any sample was accepted
 
 

@@ -34,10 +34,11 @@ from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 
-from gyronet.model.feature_specs import (GAP_FACTOR, PAPER_FEATURES, PRIOR_TEMP_C, feature_name, play_operator,
+from gyronet.model.feature_specs import (PAPER_FEATURES, PRIOR_TEMP_C, feature_name, play_operator,
                                          power_on_rows, required_columns)
 from gyronet.model.feature_kinds import row_values, segment_values
 from gyronet.model.filters import Lag, LaggedRate, RateTracker
+from gyronet.recordings.data import GAP_FACTOR
 from gyronet.recordings.guard import MAX_TEMP_RATE_C_PER_S, TempGuard, in_sensor_range
 from gyronet.recordings.rate_watch import RateChange, RateWatch
 
@@ -244,8 +245,7 @@ class FeatureExtractor:
 
     def _time_features(self, time_s: np.ndarray, out: np.ndarray, accepted: np.ndarray,
                        carry_time_s: float | None) -> None:
-        """Time features at every row's own time, a rejected row's too, but for a stamp that is no time (NaN, inf):
-        the last accepted row's (``carry_time_s``: before these rows)."""
+        """Time features at each row's time; a stamp that is no time takes the last accepted one's (carry_time_s)."""
         if not self._time_index or self._start_time_s is None:
             return
         clock_s = time_s

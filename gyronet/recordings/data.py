@@ -30,6 +30,9 @@ TRUTH_SUFFIX = ".truth.csv"
 FS_TOLERANCE = 0.05
 # an interval this many times the median one is a break in the record, not jitter
 BREAK_FACTOR = 5.0
+# an interval over this many sample periods is a gap, lost samples (CONTRACT.md 1): the features bridge or
+# restart there, Allan analysis takes the longest stretch without one, importers count what was lost
+GAP_FACTOR = 1.5
 
 
 @dataclass

@@ -17,15 +17,13 @@ from typing import Mapping
 import numpy as np
 
 from gyronet.recordings.csvtable import read_preamble, read_source, to_utf8
-from gyronet.recordings.data import GYRO_COLUMNS, REQUIRED_COLUMNS, Recording
+from gyronet.recordings.data import BREAK_FACTOR, GYRO_COLUMNS, REQUIRED_COLUMNS, Recording
 from gyronet.errors import RecordingError
 
 log = logging.getLogger(__name__)
 
 STANDARD_GRAVITY_M_S2 = 9.80665  # CGPM 1901; m/s^2 per g
 ACC_COLUMNS = ("acc_x_g", "acc_y_g", "acc_z_g")
-# dt more than this many median intervals apart is a break in the record, not jitter
-GAP_FACTOR = 5.0
 # a record is "regular" when this share of in-burst intervals is within 10 % of the median
 REGULAR_SHARE = 0.9
 
@@ -133,7 +131,7 @@ def regular_rate_hz(time_s: np.ndarray) -> float | None:
     median_s = float(np.median(dt_s))
     if median_s <= 0:
         return None
-    in_burst = dt_s[dt_s < GAP_FACTOR * median_s]
+    in_burst = dt_s[dt_s < BREAK_FACTOR * median_s]
     close = np.abs(in_burst - median_s) <= 0.1 * median_s
     if in_burst.size == 0 or close.mean() < REGULAR_SHARE:
         return None

@@ -46,7 +46,7 @@ from pathlib import Path
 
 import numpy as np
 
-from gyronet.recordings.data import GYRO_COLUMNS, REQUIRED_COLUMNS, Recording
+from gyronet.recordings.data import GAP_FACTOR, GYRO_COLUMNS, REQUIRED_COLUMNS, Recording
 from gyronet.errors import RecordingError
 from gyronet.recordings.importers._common import (STANDARD_GRAVITY_M_S2, fahrenheit_to_c, finish, read_header_line,
                                        read_numeric_table, snake)
@@ -67,7 +67,6 @@ _ACC_G = {"g": 1.0, "m/s^2": 1.0 / STANDARD_GRAVITY_M_S2, "m/s2": 1.0 / STANDARD
 _TIME_S = {"s": 1.0, "": 1.0, "ms": 1e-3, "us": 1e-6}
 _PRESSURE_KPA = {"kpa": 1.0, "hpa": 0.1, "pa": 1e-3}
 AUTOCAL_SUSPECT_DPS = 0.002  # a median gyro this close to 0 on every axis looks re-zeroed by the sensor
-GAP_FACTOR = 1.5  # an interval longer than this many median intervals has lost samples
 
 
 def import_lpms(path: str | os.PathLike, sensor_id: int | None = None, gyro_unit: str = "auto",

@@ -33,7 +33,8 @@ import numpy as np
 
 from gyronet.recordings.data import GYRO_COLUMNS, Recording
 from gyronet.errors import GyronetError, RecordingError
-from gyronet.recordings.importers._common import ACC_COLUMNS, GAP_FACTOR, STANDARD_GRAVITY_M_S2, degrees, finish
+from gyronet.recordings.data import BREAK_FACTOR
+from gyronet.recordings.importers._common import ACC_COLUMNS, STANDARD_GRAVITY_M_S2, degrees, finish
 
 log = logging.getLogger(__name__)
 
@@ -220,7 +221,7 @@ def _read_imu(path: Path, reader, topic: str, stamp: str) -> tuple[np.ndarray, d
     lost, breaks = _lost_samples(stamp_ns)
     if lost:
         log.warning("%s: %s: %d sample(s) lost by the stamps (%d break(s) over %g intervals)", path.name, topic,
-                    lost, breaks, GAP_FACTOR)
+                    lost, breaks, BREAK_FACTOR)
     if reordered:
         log.info("%s: %s: %d message(s) recorded out of stamp order, sorted", path.name, topic, reordered)
     meta = {"sensor": f"ROS {topic}" + (f" (frame {frame_id})" if frame_id else ""), "ros_imu_topic": topic,
@@ -245,7 +246,7 @@ def _lost_samples(stamp_ns: np.ndarray) -> tuple[int, int]:
     if median <= 0:
         return 0, 0
     intervals = np.rint(step / median)
-    return int(np.clip(intervals - 1, 0, None).sum()), int(np.count_nonzero(step > GAP_FACTOR * median))
+    return int(np.clip(intervals - 1, 0, None).sum()), int(np.count_nonzero(step > BREAK_FACTOR * median))
 
 
 def _read_temperature(path: Path, reader, topic: str, stamp: str) -> tuple[np.ndarray, np.ndarray]:
@@ -265,7 +266,7 @@ def _join_causal(path: Path, imu_ns: np.ndarray, temp_ns: np.ndarray, temp_c: np
                  max_age_s: float | None) -> tuple[np.ndarray, dict[str, int]]:
     """Each IMU sample's latest temperature at or before it (NaN when none or too old), and the drop counts."""
     if max_age_s is None:
-        max_age_s = GAP_FACTOR * float(np.median(np.diff(temp_ns))) * 1e-9 if len(temp_ns) > 1 else np.inf
+        max_age_s = BREAK_FACTOR * float(np.median(np.diff(temp_ns))) * 1e-9 if len(temp_ns) > 1 else np.inf
     # index of the last temperature stamped at or before each IMU stamp; -1: none yet
     latest = np.searchsorted(temp_ns, imu_ns, side="right") - 1
     before = latest < 0
