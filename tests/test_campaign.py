@@ -86,3 +86,12 @@ def test_the_real_runs_floors_and_the_cubic_held_out_as_the_study_found():
     np.testing.assert_allclose(px4["cats_run_z_down"], [10.12, 4.43, 1.56], rtol=0.05)
     markdown = to_markdown(table)
     assert "| poly3 | startup 600 s |" in markdown and markdown.count("\n|") >= 5
+
+
+def test_a_run_without_a_cold_dwell_long_enough_for_its_floor_is_one_line():
+    time_s = np.arange(0.0, 1000.0, 0.5)  # a steady ramp: a few seconds within 1 degC of its coldest
+    columns = {"time_s": time_s, "temp_c": 5.0 + 0.05 * time_s,
+               **{f"gyro_{a}_dps": np.zeros_like(time_s) for a in "xyz"}}
+    with pytest.raises(GyronetError, match=r"ramp.csv: its cold dwell .* is 40 samples, too short") as err:
+        floor_dps(Recording(columns, {"fs_hz": "2"}, "ramp.csv"))
+    assert "\n" not in str(err.value)

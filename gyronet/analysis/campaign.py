@@ -20,6 +20,7 @@ import torch
 
 from gyronet.allan import oadev
 from gyronet.bundle.compensator import Compensator
+from gyronet.errors import GyronetError
 from gyronet.recordings.data import AXES, Recording, block_means, time_blocks
 from gyronet.training.dataset import load_cached
 from gyronet.model.features import PAPER_FEATURES
@@ -46,7 +47,12 @@ def cold_dwell(recording: Recording, within_c: float = 1.0) -> np.ndarray:
 def floor_dps(recording: Recording, tau_s: float = BLOCK_S) -> np.ndarray:
     """Overlapping Allan deviation at ``tau_s`` of the raw rate in the cold dwell, per axis, deg/s."""
     mask = cold_dwell(recording)
-    _, adev, _ = oadev(recording.gyro_dps[mask], recording.fs_hz, [tau_s])
+    try:
+        _, adev, _ = oadev(recording.gyro_dps[mask], recording.fs_hz, [tau_s])
+    except ValueError:  # too few samples for one tau_s
+        raise GyronetError(f"{recording.path}: its cold dwell (the longest stretch within 1 degC of its coldest "
+                           f"temperature) is {int(mask.sum())} samples, too short for the noise floor (the Allan "
+                           f"deviation at {tau_s:g} s needs more than {2 * tau_s:g} s of it)") from None
     return np.asarray(adev[0], dtype=np.float64)
 
 
