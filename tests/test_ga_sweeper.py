@@ -303,6 +303,15 @@ def test_resumed_sweep_is_the_uninterrupted_one(app: Path) -> None:
     assert params("straight") == params("sweep")
 
 
+def test_resume_refuses_other_fixed_overrides(app: Path) -> None:
+    """Another recording (or any other fixed setting) on resume: the cached fitness would not compare."""
+    run_app(app)
+    before = calls(app)
+    proc = run_app(app, "+sleep_s=0", check=False)
+    assert proc.returncode != 0 and "other fixed overrides" in proc.stderr and "+sleep_s=0" in proc.stderr
+    assert calls(app) == before
+
+
 def test_resume_refuses_another_search_space(app: Path) -> None:
     (app / "sweep").mkdir()
     space = [{"name": "x", "kind": "float", "low": 0.0, "high": 1.0}]

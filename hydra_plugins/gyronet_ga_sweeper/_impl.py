@@ -117,10 +117,11 @@ class GASweeperImpl(Sweeper):
             raise GASweepError(
                 f"{path} is a sweep over another search space ({old.search_space}); "
                 "use a new hydra.sweep.dir, or hydra.sweeper.resume=false to start over there")
-        if old.fixed_overrides != fixed:
-            log.warning("resuming with fixed overrides %s, the history had %s", fixed,
-                        old.fixed_overrides)
-        old.fixed_overrides, old.options = fixed, asdict(self.options)
+        if old.fixed_overrides != fixed:  # another recording or setting: its fitness would not compare
+            raise GASweepError(
+                f"{path} is a sweep with other fixed overrides ({old.fixed_overrides}, now {fixed}); "
+                "use a new hydra.sweep.dir, or hydra.sweeper.resume=false to start over there")
+        old.options = asdict(self.options)
         self.job_idx = old.next_job_idx()
         log.info("resuming %s: %d generation(s) done", path, len(old.generations))
         assert self.config is not None
