@@ -189,3 +189,17 @@ def test_two_orientations_cannot_separate_orientation_from_run_offset(tmp_path):
     report = (tmp_path / "out" / "report.md").read_text()
     assert "cannot separate them" in report
     assert "the same orientation twice" in report and "a third orientation (e.g. x_down)" in report
+
+
+def test_a_campaign_too_short_for_the_test_says_no_effect_can_be_shown(tmp_path):
+    """With n deals the smallest p is 1 / (n + 1): above alpha, "no effect found" would claim what was not tested."""
+    from gyronet.analysis.diagnose.runs_report import write_runs_report
+
+    rmse = {"val_rmse_dps": {"x": 0.01, "y": 0.01, "z": 0.01}}
+    diagnosis = {"baseline": rmse, "final": rmse, "effects": []}
+    runs = [{"name": "a", "orientation": "z_down"}, {"name": "b", "orientation": "z_down"}]
+    for deals, says in ((97, "No effect can be shown"), (999, "No effect found")):
+        details = {"runs": runs, "options": {"alpha": 0.01},
+                   "rounds": [{"n_shifts": deals, "null_max_quantile": 0.7, "candidates": [], "tried": []}]}
+        write_runs_report(tmp_path, diagnosis, details, ["z_down", "z_down"], [])
+        assert says in (tmp_path / "report.md").read_text()

@@ -4,6 +4,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any, Mapping, Sequence
 
+from gyronet.atomic import write_text
 from gyronet.recordings.data import AXES
 from gyronet.analysis.diagnose.advice import advice_lines
 from gyronet.analysis.diagnose.report import alternatives_lines
@@ -20,7 +21,16 @@ def write_runs_report(out_dir: Path, diagnosis: Mapping[str, Any], details: Mapp
     for label in ("baseline", "final"):
         lines.append(f"| {label} | " + " | ".join(f"{diagnosis[label]['val_rmse_dps'][a]:.4g}" for a in AXES) + " |")
     lines.append("")
-    if not diagnosis["effects"]:
+    # the smallest p a test of n deals can give is 1 / (n + 1): with too few, neither test can pass anything
+    first = details["rounds"][0] if details["rounds"] else {}
+    deals = max(first.get("n_shifts", 0), first.get("run_n_shifts", 0))
+    alpha = details["options"]["alpha"]
+    if not diagnosis["effects"] and deals and 1 / (deals + 1) > alpha:
+        lines += [f"**No effect can be shown.** With {deals} deals of the runs' pieces the smallest p the tests "
+                  f"can give is {1 / (deals + 1):.3g}, above alpha = {alpha:g}: the runs are too short for them "
+                  "to pass anything. The candidates' scores are listed below for what they suggest; the final "
+                  "bundle is the baseline.", ""]
+    elif not diagnosis["effects"]:
         lines += ["**No effect found**: nothing constant within a run changes between the runs by more than the "
                   "runs change within themselves, and nothing within the runs passes the test. The final bundle "
                   "is the baseline.", ""]
@@ -52,4 +62,4 @@ def write_runs_report(out_dir: Path, diagnosis: Mapping[str, Any], details: Mapp
         if round_["tried"]:
             lines.append("")
     lines += advice_lines(advice)
-    (out_dir / "report.md").write_text("\n".join(lines))
+    write_text(out_dir / "report.md", "\n".join(lines))
