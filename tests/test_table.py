@@ -119,3 +119,12 @@ def test_held_out_recordings_are_named_once_and_rates_must_match(bundle, tmp_pat
     write_simulation(simulate("paper", fs_hz=4 * FAST_FS_HZ, seed=3, sensor_seed=0, duration_s=3600.0), fast)
     with pytest.raises(BundleError, match="Hz"):
         table_rows(fast, {"gyronet": bundle})
+
+
+def test_a_bundle_scored_on_its_own_training_recording_is_named_in_sample(bundle, paper_csv, cycle_csv, caplog):
+    """meta.json's checksum of the training data: a row on that recording is no held-out figure."""
+    with caplog.at_level("WARNING", logger="gyronet.analysis.table"):
+        rows = table_rows(paper_csv, {"gyronet": bundle})
+    assert "gyronet (in sample)" in rows and "gyronet" not in rows
+    assert any("was trained on" in r.getMessage() for r in caplog.records)
+    assert "gyronet" in table_rows(cycle_csv, {"gyronet": bundle})

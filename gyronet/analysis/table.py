@@ -76,6 +76,7 @@ def table_rows(input_path: str | Path, bundles: Mapping[str, str | Path], startu
     if truth is not None:
         noise = np.column_stack([truth[f"noise_{a}_dps"] for a in AXES])
         rows["Noise only (truth)"] = _row(recording.time_s[keep], noise[keep], None)
+    checksum = recording.checksum()
     for name, bundle in bundles.items():
         log.info("table: %s <- %s on %s", name, bundle, input_path)
         compensator = Compensator.load(bundle)
@@ -83,6 +84,14 @@ def table_rows(input_path: str | Path, bundles: Mapping[str, str | Path], startu
         out = compensate_as_deployed(compensator, recording)
         if px4_firmware_schedule and is_px4_cubic(compensator.meta):
             out = px4_firmware_output(recording.time_s, recording.temp_c, out)
+        meta = compensator.meta
+        if checksum in {meta.get("data_sha256"), *(r.get("sha256") for r in meta.get("runs", []))}:
+            log.warning("table: %s was trained on %s: its row is in sample, named so and left out of any mean",
+                        name, input_path)
+            name = f"{name} (in sample)"
+        if out.out_of_range[keep].any():
+            log.warning("table: %s on %s: %.0f %% of the scored samples are outside its trained temperatures", name,
+                        input_path, 100.0 * out.out_of_range[keep].mean())
         rows[name] = row(out.rate_dps, out.drift_dps)
     return rows
 
