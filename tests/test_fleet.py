@@ -81,7 +81,8 @@ def test_table_of_every_unit(tmp_path):
     spec = fleet_table(tmp_path, spec_range_c=[-40.0, 85.0])
     assert spec["units"]["a"]["out_of_range_share"] == pytest.approx(0.2)  # 60..85 of 125 degC
     lines = to_markdown(spec).splitlines()
-    assert lines[5].startswith("| a | ok | 0.01 | 0.02 | 0.03 | -40.00 to 60.00 | 0.200 |")
+    assert lines[5].startswith("| a | ok | 0.01 | 0.02 | 0.03 | -40.00 to 60.00 | 0.200 | - |")
+    assert lines[6].startswith("| b | ok |") and "| 0.100 |" in lines[6]  # the held-out samples' share
     assert lines[7].startswith("| c | missing: no report.json")
     with pytest.raises(GyronetError, match=f"no {UNITS_FILE}"):
         fleet_table(tmp_path / "a")

@@ -166,18 +166,21 @@ def to_markdown(table: Mapping[str, Any]) -> str:
     if low is not None:
         head += (f"; out of range: share of [{low:.2f}, {high:.2f}] degC ({table['reference']}) outside the "
                  "unit's trained range")
+    held = any("eval_out_of_range_share" in row for row in table["units"].values())  # eval.paths given
     lines = [head + ".", "",
-             "| unit | status | val RMSE x | y | z | trained range | out of range | bundle |",
-             "|---|---|---|---|---|---|---|---|",
-             "| | | deg/s | deg/s | deg/s | degC | share | |"]
+             "| unit | status | val RMSE x | y | z | trained range | out of range |" + (" held out, out of range |" if held
+                                                                                    else "") + " bundle |",
+             "|---|---|---|---|---|---|---|" + ("---|" if held else "") + "---|",
+             "| | | deg/s | deg/s | deg/s | degC | share |" + (" share |" if held else "") + " |"]
     for name, row in table["units"].items():
         if row["status"] != "ok":
-            lines.append(f"| {name} | {row['status']}: {row['reason']} | | | | | | |")
+            lines.append(f"| {name} | {row['status']}: {row['reason']} | | | | | |" + (" |" if held else "") + " |")
             continue
         rmse = " | ".join(f"{row['val_rmse_dps'][a]:.4g}" for a in AXES)
         t_low, t_high = row["temp_range_c"]
-        lines.append(f"| {name} | ok | {rmse} | {t_low:.2f} to {t_high:.2f} | {row['out_of_range_share']:.3f} "
-                     f"| {row['bundle']} |")
+        share = row.get("eval_out_of_range_share")
+        lines.append(f"| {name} | ok | {rmse} | {t_low:.2f} to {t_high:.2f} | {row['out_of_range_share']:.3f} |"
+                     + ((" - |" if share is None else f" {share:.3f} |") if held else "") + f" {row['bundle']} |")
     return "\n".join(lines) + "\n"
 
 
