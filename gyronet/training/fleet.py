@@ -135,7 +135,8 @@ def _unit_row(job_dir: Path, recording: str) -> dict[str, Any]:
     report_path, meta_path = job_dir / "report.json", job_dir / "compensator" / "meta.json"
     row: dict[str, Any] = {"recording": recording, "job_dir": str(job_dir)}
     if not (report_path.is_file() and meta_path.is_file()):
-        reason = "no job folder" if not job_dir.is_dir() else "no report.json (failed or not finished; see its train.log)"
+        reason = "no job folder" if not job_dir.is_dir() else \
+            "no report.json (failed or not finished: its one-line error is on fleet.py's stderr, its log in train.log)"
         return {**row, "status": "missing", "reason": reason}
     try:
         report = json.loads(report_path.read_text())
