@@ -135,6 +135,9 @@ def test_every_report_ends_with_what_to_record_next():
     records = " ".join(a.record for a in items)
     assert "heating as well" in records and "wider range" in records and "accelerometer" in records
     assert "another thermal history" in records  # time and temperature confounded
+    assert "board thermistor" in records  # no column to test a second thermal path with
+    for logged in (["vdd_v"], ["depth_m", "acc_x_g"], ["board_temp_c"]):  # one there already: not asked for
+        assert "board thermistor" not in " ".join(a.record for a in record_advice(time_s, cooling, 1.0, logged))
     # a record that shows everything still gets one item
     lines = advice_lines([])
     assert lines[0] == "## What to record next" and any("another run" in line for line in lines)

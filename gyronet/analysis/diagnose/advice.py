@@ -96,7 +96,7 @@ def record_advice(time_s: np.ndarray, temp_c: np.ndarray, fs_hz: float, columns:
     if not any(c.startswith("acc_") for c in columns):
         out.append(Advice("log", "g-sensitivity and orientation: there is no accelerometer column",
                           "log the accelerometer (acc_x_g, acc_y_g, acc_z_g)"))
-    if not any(c.endswith("_c") for c in columns):
+    if not any(not c.startswith("acc_") for c in columns):  # no column but the accelerometer's to test
         out.append(Advice("log", "a second thermal path (board or case temperature) apart from a lag of temp_c",
                           "log a board thermistor (board_temp_c) or the supply (vdd_v)"))
     return out
