@@ -150,6 +150,10 @@ def diagnose(data_options: Mapping[str, Any], make_model: Callable[[int], torch.
         recordings.append(load_cached(data_options["val_path"]))
         in_both = set(source_columns(recordings[1]))
         columns = [c for c in source_columns(recordings[0]) if c in in_both]
+        dropped = [c for c in source_columns(recordings[0]) if c not in in_both]
+        if dropped:
+            log.warning("%s lacks (or holds constant) column(s) %s of the training record: no candidate reads them",
+                        data_options["val_path"], ", ".join(dropped))
     longest_s = options.candidates.max_tau_fraction * span_s
     rows = ScreenRows.build(recordings, stage.data.fs_hz, options.block_s, n_spans, options.n_folds,
                             data_options.get("static_rate_dps"))
