@@ -112,8 +112,12 @@ def test_passive_reader_of_an_ig1_with_the_legacy_layout_is_refused(bundle, shor
     assert len(pd.read_csv(tmp_path / "live.csv", comment="#")) == 0
 
 
-def test_record_sets_the_sensor_up_and_writes_a_recording(short_recording, tmp_path):
+def test_record_sets_the_sensor_up_and_writes_a_recording(short_recording, tmp_path, monkeypatch, caplog):
+    from gyronet.deploy.stream import record
     from gyronet.deploy.stream.record import record_stream
+
+    monkeypatch.setattr(record, "PROGRESS_S", 0.0)  # a progress line every sample
+    caplog.set_level("INFO", logger="gyronet.deploy.stream.record")
 
     recording = load_recording(short_recording)
     recording.columns["time_s"] = np.arange(N_SAMPLES) / 100.0  # played at the rate the sensor is set to
@@ -127,6 +131,8 @@ def test_record_sets_the_sensor_up_and_writes_a_recording(short_recording, tmp_p
     assert saved.meta["sensor"] == "LPMS-BE1" and saved.meta["fs_hz"] == "100"
     assert saved.meta["gyro_source"] == "raw" and saved.meta["gyro_autocalibration"] == "off"
     assert summary["n_samples"] == len(saved) == N_SAMPLES and device.rate_hz == 100
+    progress = [r.getMessage() for r in caplog.records if "samples, up to time_s=" in r.getMessage()]
+    assert progress and progress[-1].startswith(f"recorded {N_SAMPLES} samples, up to time_s=")
     layout = device.layout()
     filled = fill_columns(recording.columns, layout)
     rows = [layout.quantize({c: float(filled[c][i]) for c in layout.columns}) for i in range(N_SAMPLES)]

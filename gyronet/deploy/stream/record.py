@@ -32,6 +32,7 @@ from gyronet.deploy.stream.signals import stop_on_signals
 log = logging.getLogger(__name__)
 
 REQUIRED = ("time_s", "temp_c", "gyro_x_dps", "gyro_y_dps", "gyro_z_dps")
+PROGRESS_S = 60.0  # how often a recording says how far it is
 
 
 def record_stream(port: str, output: str | Path, baud: int = 921600, lpbus: LpBusSetup | None = None,
@@ -79,6 +80,7 @@ def record_stream(port: str, output: str | Path, baud: int = 921600, lpbus: LpBu
                          on_reopen=start.reopen_hook(parser, port), **dict(reconnect or {}))
     stopped, offset_s, last_s, interval_s, restarts = "port_gone", 0.0, None, 0.0, 0
     refusal: Exception | None = None
+    progress_at = started + PROGRESS_S  # a line a minute: a chamber run is hours of otherwise silent recording
     try:
         for item in items:
             counter.add(item)
@@ -94,6 +96,10 @@ def record_stream(port: str, output: str | Path, baud: int = 921600, lpbus: LpBu
                 interval_s = time_s - last_s
             out.write([time_s, *(row[c] for c in start.layout.columns[1:])])
             last_s = time_s
+            if time.monotonic() >= progress_at:
+                progress_at += PROGRESS_S
+                log.info("recorded %d samples, up to time_s=%.0f, %.2f degC now; %s", out.n_rows, time_s,
+                         row["temp_c"], counter.summary())
             if max_samples is not None and out.n_rows >= max_samples:
                 stopped = "max_samples"
                 break
@@ -113,6 +119,7 @@ def record_stream(port: str, output: str | Path, baud: int = 921600, lpbus: LpBu
     log.info("recorded %d samples into %s (%s); %s", out.n_rows, out.path, stopped, counter.summary())
     if summary_path is not None:
         write_summary(summary_path, summary)
+        log.info("summary (samples, faults by reason, the sensor's account): %s", summary_path)
     if refusal is not None:
         raise refusal
     return summary
