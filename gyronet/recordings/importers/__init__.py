@@ -75,7 +75,7 @@ def detect_format(path: str | os.PathLike) -> str:
     if "time_s" in names:
         return "csv"
     raise RecordingError(f"{path}: cannot tell the format from the header ({header[:80]!r}); "
-                         f"pass format={'|'.join(FORMATS)} (csv: the columns of CONTRACT.md, any of ',', ';' "
+                         f"pass format={'|'.join(FORMATS)} (csv: the columns of docs/reference/recording-format.md, any of ',', ';' "
                          "or tab between cells)")
 
 
