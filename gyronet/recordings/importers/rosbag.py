@@ -44,8 +44,8 @@ SCALAR_TEMP_TYPES = ("std_msgs/msg/Float32", "std_msgs/msg/Float64")
 SUFFIXES = (".bag", ".db3", ".mcap")
 STAMPS = ("header", "bag")
 _MAGIC = (b"#ROSBAG V2.0\n", b"\x89MCAP0\r\n")
-TEMP_ADVICE = ("a recording needs temp_c, the sensor's own temperature (docs/reference/recording-format.md): record the "
-               "driver's sensor_msgs/Temperature topic with the IMU (rosbag record / ros2 bag record both "
+TEMP_ADVICE = ("a recording needs temp_c, the sensor's own temperature (docs/reference/recording-format.md): "
+               "record the driver's sensor_msgs/Temperature topic with the IMU (rosbag record / ros2 bag record both "
                "topics), or name a std_msgs/Float32 topic with rosbag.temp_topic=...")
 
 
