@@ -168,21 +168,25 @@ def to_markdown(table: Mapping[str, Any]) -> str:
         head += (f"; out of range: share of [{low:.2f}, {high:.2f}] degC ({table['reference']}) outside the "
                  "unit's trained range")
     held = any("eval_out_of_range_share" in row for row in table["units"].values())  # eval.paths given
-    lines = [head + ".", "",
-             "| unit | status | val RMSE x | y | z | trained range | out of range |" + (" held out, out of range |" if held
-                                                                                    else "") + " bundle |",
-             "|---|---|---|---|---|---|---|" + ("---|" if held else "") + "---|",
-             "| | | deg/s | deg/s | deg/s | degC | share |" + (" share |" if held else "") + " |"]
+    heads = ["unit", "status", "val RMSE x", "y", "z", "trained range", "out of range",
+             *(["held out, out of range"] if held else []), "bundle"]
+    units = ["", "", "deg/s", "deg/s", "deg/s", "degC", "share", *(["share"] if held else []), ""]
+    lines = [head + ".", "", _cells(heads), "|" + "---|" * len(heads), _cells(units)]
     for name, row in table["units"].items():
         if row["status"] != "ok":
-            lines.append(f"| {name} | {row['status']}: {row['reason']} | | | | | |" + (" |" if held else "") + " |")
+            lines.append(_cells([name, f"{row['status']}: {row['reason']}", *[""] * (len(heads) - 2)]))
             continue
-        rmse = " | ".join(f"{row['val_rmse_dps'][a]:.4g}" for a in AXES)
         t_low, t_high = row["temp_range_c"]
         share = row.get("eval_out_of_range_share")
-        lines.append(f"| {name} | ok | {rmse} | {t_low:.2f} to {t_high:.2f} | {row['out_of_range_share']:.3f} |"
-                     + ((" - |" if share is None else f" {share:.3f} |") if held else "") + f" {row['bundle']} |")
+        held_cell = [("-" if share is None else f"{share:.3f}")] if held else []
+        rmse = [f"{row['val_rmse_dps'][a]:.4g}" for a in AXES]
+        lines.append(_cells([name, "ok", *rmse, f"{t_low:.2f} to {t_high:.2f}", f"{row['out_of_range_share']:.3f}",
+                             *held_cell, row["bundle"]]))
     return "\n".join(lines) + "\n"
+
+
+def _cells(cells: Sequence[str]) -> str:
+    return "| " + " | ".join(cells) + " |"
 
 
 def write_table(table: Mapping[str, Any], output: str | os.PathLike) -> Path:
