@@ -6,7 +6,7 @@ from typing import Mapping
 
 import numpy as np
 
-from gyronet.allan.noise import BIAS_INSTABILITY_FACTOR, MIN_CLUSTERS
+from gyronet.allan.noise import BIAS_INSTABILITY_FACTOR
 from gyronet.allan.report import AXES, axes_of, num
 
 
@@ -43,7 +43,8 @@ def plot_allan(report_or_curves: Mapping, path=None, title: str = "Allan deviati
     panels = fig.subplots(1, n_panels, squeeze=False, sharey=True)[0]
     ranges = []
     for panel, axis in zip(panels, axis_names):
-        ranges += [_plot_curve(panel, report[axis], f"C{index % 10}", label, _max_fit_tau_s(report))
+        ranges += [_plot_curve(panel, report[axis], f"C{index % 10}", label,
+                               report.get("segments", {}).get("max_fit_tau_s", math.inf))
                    for index, (label, report) in enumerate(curves.items()) if axis in report]
         panel.set_title(f"{axis} axis")
         panel.set_xlabel("tau (s)")
@@ -61,12 +62,6 @@ def plot_allan(report_or_curves: Mapping, path=None, title: str = "Allan deviati
     return fig
 
 
-def _max_fit_tau_s(report: Mapping) -> float:
-    """The longest tau N, B and K are read at: the record over ``MIN_CLUSTERS`` (inf if the report lacks it)."""
-    used = report.get("segments", {}).get("n_samples_used")
-    return used / report["fs_hz"] / MIN_CLUSTERS if used and report.get("fs_hz") else math.inf
-
-
 def _plot_curve(panel, curve: Mapping, color: str, label: str | None,
                 max_fit_tau_s: float = math.inf) -> tuple[float, float] | None:
     """Draw one axis' curve (faint past the taus N, B and K are read at) and its fitted lines; return the range
@@ -77,7 +72,7 @@ def _plot_curve(panel, curve: Mapping, color: str, label: str | None,
     terms = f"N={num(arw)} deg/rt(h), B={num(bias)} deg/h, K={num(rrw)} deg/h/rt(h)"
     read = taus <= max_fit_tau_s
     panel.loglog(taus[read], dev[read], color=color, lw=1.6, label=f"{label}: {terms}" if label else terms)
-    if not read.all():  # fewer than MIN_CLUSTERS clusters: shown, not read (joined to the last read tau)
+    if not read.all():  # too few clusters (noise.MIN_CLUSTERS): shown, not read (joined to the last read tau)
         tail = max(int(read.sum()) - 1, 0)
         panel.loglog(taus[tail:], dev[tail:], color=color, lw=1.0, alpha=0.35)
     # sigma = N / sqrt(tau), sigma = 0.664 B, sigma = K sqrt(tau / 3), all back in deg/s.

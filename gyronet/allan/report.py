@@ -105,7 +105,8 @@ def allan_report(time_s: np.ndarray, rate_dps: np.ndarray, fs_hz: float | None =
     report["fs_hz"] = float(fs_hz)
     report["segments"] = {"count": len(segments), "used_time_s": [float(time_s[start]), float(time_s[stop - 1])],
                           "n_samples_used": int(stop - start), "n_samples_total": int(n_total),
-                          "n_impossible": n_impossible, "largest_gap_s": float(gaps_s.max()) if len(gaps_s) else 0.0}
+                          "n_impossible": n_impossible, "largest_gap_s": float(gaps_s.max()) if len(gaps_s) else 0.0,
+                          "max_fit_tau_s": float(max_tau_s)}  # N, B and K are read up to here
     return report
 
 
