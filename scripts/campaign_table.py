@@ -7,7 +7,7 @@ from pathlib import Path
 from hydra.utils import instantiate
 from omegaconf import DictConfig, OmegaConf
 
-from gyronet.atomic import atomic_output
+from gyronet.atomic import write_text
 from gyronet.errors import GyronetError
 from gyronet.analysis.campaign import held_out_table, to_markdown
 
@@ -33,10 +33,8 @@ def main(cfg: DictConfig) -> None:
     markdown = to_markdown(table)
     output = Path(cfg.output)
     output.parent.mkdir(parents=True, exist_ok=True)
-    with atomic_output(output) as tmp:
-        tmp.write_text(markdown)
-    with atomic_output(output.with_suffix(".json")) as tmp:
-        tmp.write_text(json.dumps(table, indent=2) + "\n")
+    write_text(output, markdown)
+    write_text(output.with_suffix(".json"), json.dumps(table, indent=2) + "\n")
     log.info("held-out runs:\n%s", markdown)
 
 

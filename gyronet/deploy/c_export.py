@@ -14,7 +14,7 @@ import re
 from pathlib import Path
 from typing import Any
 
-from gyronet.atomic import atomic_output
+from gyronet.atomic import write_text
 from gyronet.bundle.schema import MODEL_FILE
 from gyronet.deploy.c import HERE, c_float
 from gyronet.deploy.c._error_bar import error_bar_code
@@ -148,8 +148,7 @@ def write_c(bundle_dir: Path, out_dir: Path) -> dict[str, Any]:
     written = []
     for name in (HEADER, SOURCE):
         text = _fill((HERE / f"{name}.in").read_text(), values)
-        with atomic_output(out_dir / name) as tmp:
-            tmp.write_text(text)
+        write_text(out_dir / name, text)
         written.append(str(out_dir / name))
     summary = {"files": written, "kind": model.kind, "state_bytes": state_bytes, "aux_inputs": aux,
                "kalman": compensator.kalman is not None, "kalman_transient_samples": kalman.n_transient,

@@ -218,7 +218,7 @@ def export_params(bundle_dir: str | Path, output: str | Path, stack: str = "px4"
     (1 Hz, 1 degC, at ``temp_rate_c_per_s``), ArduPilot's over T and T_cal. ``history``: a
     recording whose temperature history the errors are also measured on (``history_error``).
     """
-    from gyronet.atomic import atomic_output
+    from gyronet.atomic import write_text
 
     if stack not in ("px4", "ardupilot"):
         raise GyronetError(f"parameters are written for px4 or ardupilot, not {stack!r}")
@@ -258,10 +258,8 @@ def export_params(bundle_dir: str | Path, output: str | Path, stack: str = "px4"
     summary["n_params"] = len(rows)
     output = Path(output)
     output.parent.mkdir(parents=True, exist_ok=True)
-    with atomic_output(output) as tmp:
-        tmp.write_text(params_text(rows, name, vehicle_id, component_id, source=str(bundle_dir)))
-    with atomic_output(output.with_suffix(".json")) as tmp:
-        tmp.write_text(json.dumps(summary, indent=2) + "\n")
+    write_text(output, params_text(rows, name, vehicle_id, component_id, source=str(bundle_dir)))
+    write_text(output.with_suffix(".json"), json.dumps(summary, indent=2) + "\n")
     return summary
 
 

@@ -18,7 +18,7 @@ import os
 from pathlib import Path
 from typing import Any, Mapping, Sequence
 
-from gyronet.atomic import atomic_output, write_text
+from gyronet.atomic import write_text
 from gyronet.errors import GyronetError
 from gyronet.recordings.data import AXES, TRUTH_SUFFIX
 
@@ -193,10 +193,8 @@ def write_table(table: Mapping[str, Any], output: str | os.PathLike) -> Path:
     """The table as Markdown at ``output`` and every figure as JSON beside it (``.json``), each whole or not at all."""
     output = Path(output)
     output.parent.mkdir(parents=True, exist_ok=True)
-    with atomic_output(output) as tmp:
-        tmp.write_text(to_markdown(table))
-    with atomic_output(output.with_suffix(".json")) as tmp:
-        tmp.write_text(json.dumps(table, indent=2) + "\n")
+    write_text(output, to_markdown(table))
+    write_text(output.with_suffix(".json"), json.dumps(table, indent=2) + "\n")
     return output
 
 

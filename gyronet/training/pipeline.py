@@ -13,7 +13,7 @@ import numpy as np
 import torch
 
 from gyronet.allan.report import report_to_json
-from gyronet.atomic import atomic_output
+from gyronet.atomic import write_text
 from gyronet.bundle.compensator import Compensator, build_meta
 from gyronet.bundle.io import save_bundle
 from gyronet.recordings.data import AXES, load_recording, load_truth, truth_path
@@ -184,8 +184,7 @@ def train_run(data: DriftData, model: torch.nn.Module, optim: Callable | None, o
         metrics.update(_eval_metrics(result, prefix="eval" if len(evaluations) == 1 else f"eval_{Path(path).stem}"))
     if writer is not None:
         _log_run(writer, metrics, evaluations, hparams or model_info(model))
-    with atomic_output(out_dir / "report.json") as tmp:  # strict JSON (a figure with no value is null), whole or not
-        tmp.write_text(report_to_json(report))
+    write_text(out_dir / "report.json", report_to_json(report))  # strict JSON: a figure with no value is null
     return metrics
 
 

@@ -15,7 +15,7 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from gyronet.atomic import atomic_output
+from gyronet.atomic import write_text
 from gyronet.bundle.compensator import Compensator
 from gyronet.recordings.data import AXES, load_recording, load_truth
 from gyronet.training.dataset import block_rmse
@@ -99,10 +99,9 @@ def write_table(rows: Sequence[Mapping[str, Any]], output: str | os.PathLike, se
     """Keep every figure and the settings that made them (JSON) beside the Markdown, each file whole or not at all."""
     output = Path(output)
     output.parent.mkdir(parents=True, exist_ok=True)
-    with atomic_output(output) as tmp:
-        tmp.write_text(to_markdown(rows))
-    with atomic_output(output.with_suffix(".json")) as tmp:
-        tmp.write_text(json.dumps({"settings": dict(settings), "rows": list(rows)}, indent=2) + "\n")
+    write_text(output, to_markdown(rows))
+    everything = {"settings": dict(settings), "rows": list(rows)}
+    write_text(output.with_suffix(".json"), json.dumps(everything, indent=2) + "\n")
     return output
 
 

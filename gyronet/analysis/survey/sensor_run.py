@@ -20,7 +20,7 @@ import numpy as np
 
 from gyronet.analysis.survey.bound import BOUND, score_form_bound
 from gyronet.analysis.survey.scoring import score_bundle, turn_on_bias
-from gyronet.atomic import atomic_output
+from gyronet.atomic import write_text
 from gyronet.recordings.data import load_recording, load_truth
 from gyronet.errors import GyronetError
 
@@ -190,8 +190,7 @@ def run_sensor(sensor_seed: int, spec: SurveySpec, folder: str | Path, reuse: bo
     with _one_process_at_a_time(folder):
         result = {**_simulate_train_score(sensor_seed, spec, folder, fingerprint),
                   "seconds": time.perf_counter() - start}
-        with atomic_output(result_path) as tmp:
-            tmp.write_text(json.dumps(result, indent=1) + "\n")
+        write_text(result_path, json.dumps(result, indent=1) + "\n")
     return result
 
 

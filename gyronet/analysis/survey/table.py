@@ -11,7 +11,7 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from gyronet.atomic import atomic_output
+from gyronet.atomic import atomic_output, write_text
 from gyronet.model.recalibration import HOUR_RMS_LIMIT
 from gyronet.recordings.data import AXES
 from gyronet.training.sigma_table import BELOW_RANGE, GOAL
@@ -197,14 +197,11 @@ def write_outputs(results: Sequence[Mapping[str, Any]], summary: Mapping[str, An
     """``output`` (Markdown), and beside it ``.json`` (summary, settings, every sensor), ``_sensors.csv`` and ``.png``."""
     output = Path(output)
     output.parent.mkdir(parents=True, exist_ok=True)
-    with atomic_output(output) as tmp:
-        tmp.write_text(to_markdown(summary, settings))
+    write_text(output, to_markdown(summary, settings))
     everything = {"summary": summary, "settings": settings,
                   "sensors": [{k: v for k, v in r.items() if k != "reused"} for r in results]}
-    with atomic_output(output.with_suffix(".json")) as tmp:
-        tmp.write_text(json.dumps(everything, indent=1, default=str) + "\n")
-    with atomic_output(output.with_name(output.stem + "_sensors.csv")) as tmp:
-        tmp.write_text(sensors_csv(results))
+    write_text(output.with_suffix(".json"), json.dumps(everything, indent=1, default=str) + "\n")
+    write_text(output.with_name(output.stem + "_sensors.csv"), sensors_csv(results))
     from gyronet.figures.plots import plt, survey_figure
 
     arrays = error_bar_arrays(results, summary["ours"])

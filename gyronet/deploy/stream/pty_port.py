@@ -30,7 +30,7 @@ import tty
 from pathlib import Path
 from typing import Callable
 
-from gyronet.atomic import atomic_output
+from gyronet.atomic import write_text
 from gyronet.deploy.stream.emulator import StreamPlan
 
 log = logging.getLogger(__name__)
@@ -71,8 +71,7 @@ class PtySensor:
             os.symlink(self.path, temporary)
             os.replace(temporary, self.link)
         if self.port_file is not None:
-            with atomic_output(self.port_file) as tmp:
-                tmp.write_text(self.path + "\n")
+            write_text(self.port_file, self.path + "\n")
         log.info("sensor port: %s%s", self.path, f" (link {self.link})" if self.link else "")
         return self.path
 

@@ -14,7 +14,7 @@ from typing import Mapping, Sequence
 import numpy as np
 
 from gyronet.recordings.data import load_recording
-from gyronet.atomic import atomic_output
+from gyronet.atomic import write_text
 from gyronet.errors import GyronetError
 from gyronet.deploy.stream.emulator import FaultPlan, StreamPlan, plan_stream
 from gyronet.deploy.stream.lpbus_device import EmulatedLpms
@@ -91,8 +91,7 @@ def emulate_file(input_path: str | os.PathLike, protocol: str = "lpbus", speed: 
         if device is not None:
             plan.log.update(sensor=device.model, layout=frame_layout.describe(), commands=list(device.commands))
         if log_file is not None:
-            with atomic_output(log_file) as tmp:
-                tmp.write_text(json.dumps(plan.log) + "\n")
+            write_text(log_file, json.dumps(plan.log) + "\n")
         log.info("%d samples to send as %s, %d intact; faults planned: %s", len(recording), protocol,
                  len(plan.log["good_indices"]), plan.log["expected_faults"] or "none")
         return plan
