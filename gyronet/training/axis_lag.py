@@ -31,7 +31,7 @@ import torch
 
 from gyronet.recordings.data import AXES
 from gyronet.training.dataset import DriftData, residual_block_means
-from gyronet.training.run_data import load_runs, minus_startup_offset, stack_runs
+from gyronet.training.run_data import load_runs, scored_after_startup, stack_runs
 from gyronet.training.runs import RunsData
 
 log = logging.getLogger(__name__)
@@ -142,8 +142,9 @@ def _score_by_run(time_s: np.ndarray, temp_c: np.ndarray, residual: np.ndarray, 
     for held in np.unique(run):
         mine, others = run == held, run != held
         t, res, temp = time_s[mine], residual[mine], temp_c[mine]
-        keep = (t >= t[0] + startup_s) & (temp >= temp_c[others].min()) & (temp <= temp_c[others].max())
-        means.append(residual_block_means(t[keep], minus_startup_offset(t, res, startup_s)[keep], BLOCK_S))
+        scored, res = scored_after_startup(t, res, startup_s)
+        keep = scored & (temp >= temp_c[others].min()) & (temp <= temp_c[others].max())
+        means.append(residual_block_means(t[keep], res[keep], BLOCK_S))
     return np.sqrt(np.mean(np.concatenate(means) ** 2, axis=0))
 
 

@@ -119,7 +119,9 @@ def stack_runs(runs: Sequence[Run], block_s: float) -> RunBlocks:
                      np.concatenate([np.full(len(b), i, dtype=np.int64) for i, b in enumerate(parts)]))
 
 
-def minus_startup_offset(time_s: np.ndarray, residual: np.ndarray, startup_s: float) -> np.ndarray:
-    """``residual`` minus its mean over the first ``startup_s`` s: what ``startup.still_s`` leaves of it."""
+def scored_after_startup(time_s: np.ndarray, residual: np.ndarray, startup_s: float
+                         ) -> tuple[np.ndarray, np.ndarray]:
+    """What ``startup.still_s`` leaves of ``residual``: the rows after the first ``startup_s`` s (the window's own,
+    zero-mean by construction, are not scored) and the residual less its mean over that window."""
     window = time_s < time_s[0] + startup_s
-    return residual - residual[window].mean(0) if window.any() else residual
+    return ~window, residual - residual[window].mean(0) if window.any() else residual

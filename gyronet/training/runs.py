@@ -25,7 +25,7 @@ from gyronet.model.features import PAPER_FEATURES
 from gyronet.recordings.data import AXES
 from gyronet.training.capacity import MIN_IN_BOX_S, inside_box
 from gyronet.training.dataset import MIN_TRAIN_BLOCKS, DriftData, TrainingData
-from gyronet.training.run_data import Run, RunBlocks, load_runs, minus_startup_offset, run_name, stack_runs
+from gyronet.training.run_data import Run, RunBlocks, load_runs, scored_after_startup, run_name, stack_runs
 from gyronet.training.run_offsets import RunOffsets
 
 log = logging.getLogger(__name__)
@@ -86,7 +86,7 @@ class RunsData(TrainingData):
         rows that offset applies to (those after the window; the window's own are zero-mean by construction)."""
         if self.held_out is None or self.val_startup_s <= 0:
             return np.ones(len(time_s), dtype=bool), residual
-        return time_s >= time_s[0] + self.val_startup_s, minus_startup_offset(time_s, residual, self.val_startup_s)
+        return scored_after_startup(time_s, residual, self.val_startup_s)
 
     @property
     def n_runs(self) -> int:

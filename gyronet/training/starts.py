@@ -35,7 +35,7 @@ from gyronet.recordings.data import AXES
 from gyronet.training import error_bar_fit
 from gyronet.training.dataset import DriftData, residual_block_means
 from gyronet.training.refit import continue_on_every_block
-from gyronet.training.run_data import minus_startup_offset
+from gyronet.training.run_data import scored_after_startup
 from gyronet.training.steps import predict, validation_metrics
 
 log = logging.getLogger(__name__)
@@ -126,8 +126,8 @@ def held_out_residuals(model: nn.Module, data: DriftData) -> np.ndarray:
     residual = y - predict(model, x)
     startup_s = deployed_window_s(data)
     if startup_s > 0 and data.val_path:  # scored after the window, whose own rows the offset zeroes
-        scored = time_s >= time_s[0] + startup_s
-        time_s, residual = time_s[scored], minus_startup_offset(time_s, residual, startup_s)[scored]
+        scored, residual = scored_after_startup(time_s, residual, startup_s)
+        time_s, residual = time_s[scored], residual[scored]
     elif startup_s > 0:
         residual = residual - _startup_residual(model, data, startup_s)
     return residual_block_means(time_s, residual, 60.0)
