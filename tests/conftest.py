@@ -29,6 +29,24 @@ settings.register_profile("slow", max_examples=400, **_HYPOTHESIS_COMMON)
 settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "default"))
 
 
+@pytest.fixture(autouse=True)
+def _root_logging_put_back():
+    """Undo what a command run in this process (Hydra's job logging) adds to the root logger.
+
+    Its console handler keeps the test's captured stdout; once that is closed, every later record
+    in the same worker printed "--- Logging error ---" into another test's stderr.
+    """
+    import logging
+
+    root = logging.getLogger()
+    handlers, level = list(root.handlers), root.level
+    yield
+    for handler in [h for h in root.handlers if h not in handlers and not type(h).__module__.startswith("_pytest")]:
+        root.removeHandler(handler)
+        handler.close()
+    root.setLevel(level)
+
+
 @pytest.fixture(scope="session")
 def paper_csv(tmp_path_factory) -> Path:
     """The paper's 12.7 h chamber profile, sensor 0, at 2 Hz."""
