@@ -188,6 +188,8 @@ def run_survey(monkeypatch, *args: str) -> int:
 def test_the_survey_command_writes_its_table_and_resumes(tmp_path, monkeypatch, capsys):
     out = tmp_path / "survey"
     assert run_survey(monkeypatch, *TINY, f"hydra.run.dir={out}") == 0
+    said = (out / "survey.log").read_text() + capsys.readouterr().err
+    assert "survey table" in said and "error bar: calibrated" not in said  # train.py's advice, not the survey's
     table = (out / "survey.md").read_text()
     rows = [line for line in table.splitlines() if line.startswith("| ") and "---" not in line]
     assert rows[0] == "| method | scored | median | 90th percentile | worst (sensor) |"

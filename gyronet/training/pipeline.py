@@ -25,6 +25,9 @@ log = logging.getLogger(__name__)
 
 # what one training of the default on one recording is worth: how far the shipped mixture (not the fits it mixes)
 # moved with the seed on another history, docs/results/default-model.md
+ONE_RECORDING_BAR_NOTE = ("error bar: calibrated on held-out time blocks of this one recording; on a real sensor's "
+                          "next run the error was 3-15x the bar (docs/results/error-bars.md). Train on two or more "
+                          "runs (data.paths) for a bar checked on a run it was not calibrated on")
 SEED_NOTE = ("; the bundle is their mixture, whose residual on another history moved with the seed by at most 5 % "
              "on 46 of 48 simulated sensors (5.6 % at most), by 9-10 % on 3 of 10 picked for a sharp bend where they "
              "power up (docs/results/default-model.md)")
@@ -171,9 +174,7 @@ def train_run(data: DriftData, model: torch.nn.Module, optim: Callable | None, o
         log.info(line)
     meta = _meta(model, data)
     if folds is None and "error_bar" in meta:
-        log.warning("error bar: calibrated on held-out time blocks of this one recording; on a real sensor's next "
-                    "run the error was 3-15x the bar (docs/results/error-bars.md). Train on two or more runs "
-                    "(data.paths) for a bar checked on a run it was not calibrated on")
+        log.warning(ONE_RECORDING_BAR_NOTE)
     bundle_dir = save_bundle(model, meta, out_dir / "compensator", kalman_stage(kalman_cfg, model, data))
     evaluations = evaluate_paths(bundle_dir, eval_paths, eval_block_s)
     report = {"model": model_info(model), "train_path": data.path, "metrics": metrics,
