@@ -191,3 +191,26 @@ def test_a_log_file_gets_a_line_per_fit_and_no_progress_bar_frames(tmp_path, pap
     log_text = (tmp_path / "train.log").read_text()
     assert "\r" not in log_text
     assert "fit: " in log_text and "held-out 60 s RMSE" in log_text
+
+
+@pytest.mark.parametrize("bad", ["missing", "no_time_column"])
+def test_a_bad_held_out_recording_is_refused_before_the_fit(paper_csv, tmp_path, monkeypatch, bad):
+    """A typo in eval.paths was found only once the bundle was trained (minutes, or a whole fleet)."""
+    from gyronet.errors import GyronetError
+    from gyronet.model.rbf import RBFNet
+    from gyronet.training import pipeline
+    from gyronet.training.dataset import DriftData
+
+    held_out = tmp_path / "held_out.csv"
+    if bad == "no_time_column":
+        held_out.write_text("temp_c,gyro_x_dps,gyro_y_dps,gyro_z_dps\n20,0,0,0\n")
+
+    def no_fit(*args, **kwargs):
+        raise AssertionError("fitted before the held-out recording was read")
+
+    monkeypatch.setattr(pipeline, "fit", no_fit)
+    data = DriftData(str(paper_csv))
+    with pytest.raises(GyronetError, match="held_out.csv"):
+        pipeline.train_run(data, RBFNet(data.n_features, 3, 4), None, tmp_path / "run", {"max_epochs": 5},
+                           eval_paths=[str(held_out)])
+    assert not (tmp_path / "run").exists()

@@ -16,7 +16,7 @@ from gyronet.allan.report import report_to_json
 from gyronet.atomic import write_text
 from gyronet.bundle.compensator import Compensator, build_meta
 from gyronet.bundle.io import save_bundle
-from gyronet.recordings.data import AXES, load_recording, load_truth, truth_path
+from gyronet.recordings.data import AXES, Recording, load_recording, load_truth, truth_path
 from gyronet.training import coverage
 from gyronet.training.dataset import DriftData, block_rmse, static_rate_dps
 from gyronet.training.train import evaluate, fit
@@ -96,18 +96,25 @@ def _meta(model: torch.nn.Module, data: DriftData) -> dict[str, Any]:
     return meta
 
 
-def evaluate_paths(bundle_dir: Path, paths: Sequence[str], block_s: float) -> dict[str, dict]:
-    """Evaluate a saved bundle on each held-out recording (with its ground truth when it has one).
+def load_held_out(paths: Sequence[str]) -> dict[str, tuple[Recording, dict | None]]:
+    """Each held-out recording with its ground truth when it has one: read before training, so that a missing or
+    malformed file is one line at once, not after the fit."""
+    return {str(path): (load_recording(path), load_truth(path).columns if truth_path(path).is_file() else None)
+            for path in paths}
+
+
+def evaluate_paths(bundle_dir: Path, paths: Sequence[str] | Mapping[str, tuple[Recording, dict | None]],
+                   block_s: float) -> dict[str, dict]:
+    """Evaluate a saved bundle on each held-out recording (paths, or :func:`load_held_out`'s).
 
     Each result also holds ``residual_rms_dps``: the ``block_s`` block RMS of the compensated rate
     minus the recording's static rate, per axis (the figure there is without a truth). Each
     recording's share outside the trained temperature range and its figures are logged, so that
     they reach the console and not only ``report.json``.
     """
+    held_out = paths if isinstance(paths, Mapping) else load_held_out(paths)
     results = {}
-    for path in paths:
-        recording = load_recording(path)
-        truth = load_truth(path).columns if truth_path(path).is_file() else None
+    for path, (recording, truth) in held_out.items():
         compensator = Compensator.load(bundle_dir)
         result = evaluate(compensator, recording, truth, block_s)
         arrays = result["_arrays"]
@@ -155,6 +162,7 @@ def train_run(data: DriftData, model: torch.nn.Module, optim: Callable | None, o
     Returns the final metrics; ``val/rmse_dps`` is what a sweep minimises.
     """
     out_dir = Path(out_dir)
+    held_out = load_held_out(eval_paths)
     folds = None
     if getattr(data, "n_runs", 1) > 1:  # several runs: leave-one-run-out, then the final fit on every run
         from gyronet.training.runs import fit_by_run
@@ -176,7 +184,7 @@ def train_run(data: DriftData, model: torch.nn.Module, optim: Callable | None, o
     if folds is None and "error_bar" in meta:
         log.warning(ONE_RECORDING_BAR_NOTE)
     bundle_dir = save_bundle(model, meta, out_dir / "compensator", kalman_stage(kalman_cfg, model, data))
-    evaluations = evaluate_paths(bundle_dir, eval_paths, eval_block_s)
+    evaluations = evaluate_paths(bundle_dir, held_out, eval_block_s)
     report = {"model": model_info(model), "train_path": data.path, "metrics": metrics,
               "eval": {p: {k: v for k, v in r.items() if k != "_arrays"} for p, r in evaluations.items()}}
     if folds is not None:
