@@ -128,7 +128,7 @@ def test_record_sets_the_sensor_up_and_writes_a_recording(short_recording, tmp_p
                             reconnect=FAST)
     thread.join(10)
     saved = load_recording(tmp_path / "run.csv")
-    assert saved.meta["sensor"] == "LPMS-BE1" and saved.meta["fs_hz"] == "100"
+    assert saved.meta["sensor"] == "LPMS-BE1" and saved.meta["fs_hz"] == "100" and "fs_hz_from_stamps" not in summary
     assert saved.meta["gyro_source"] == "raw" and saved.meta["gyro_autocalibration"] == "off"
     assert summary["n_samples"] == len(saved) == N_SAMPLES and device.rate_hz == 100
     progress = [r.getMessage() for r in caplog.records if "samples, up to time_s=" in r.getMessage()]
@@ -138,6 +138,24 @@ def test_record_sets_the_sensor_up_and_writes_a_recording(short_recording, tmp_p
     rows = [layout.quantize({c: float(filled[c][i]) for c in layout.columns}) for i in range(N_SAMPLES)]
     for column in ("time_s", "temp_c", *GYRO_COLUMNS, "acc_z_g"):
         np.testing.assert_array_equal(saved.columns[column], [row[column] for row in rows])
+
+
+def test_record_writes_the_rate_the_stamps_show_when_the_sensor_reports_another(short_recording, tmp_path, caplog):
+    """An emulator set to 100 Hz playing a file stamped 50 Hz apart: the reported rate made a file no loader took."""
+    from gyronet.deploy.stream.record import record_stream
+
+    recording = load_recording(short_recording)
+    recording.columns["time_s"] = np.arange(N_SAMPLES) / 50.0
+    link = tmp_path / "sensor"
+    thread = started(play_in_thread(None, link, device=power_on("LPMS-CU2"), columns=recording.columns), link)
+    summary = record_stream(str(link), tmp_path / "run.csv", lpbus=LpBusSetup(configure=True, rate_hz=100),
+                            reconnect=FAST)
+    thread.join(10)
+    saved = load_recording(tmp_path / "run.csv")
+    assert saved.meta["fs_hz"] == "50" and saved.fs_hz == 50.0 and summary["fs_hz_from_stamps"] == 50.0
+    assert len(saved) == N_SAMPLES
+    warnings = [r.getMessage() for r in caplog.records if r.levelname == "WARNING"]
+    assert any(w.startswith("the sensor reported 100 Hz, but its time stamps are 50 Hz apart") for w in warnings)
 
 
 @pytest.mark.slow

@@ -17,10 +17,12 @@ import contextlib
 import logging
 import os
 import time
+from collections import Counter
 from pathlib import Path
 from typing import Callable, Mapping
 
 from gyronet.errors import ConfigError
+from gyronet.recordings.data import FS_TOLERANCE
 from gyronet.deploy.stream.events import FaultCounter, Sample, SampleCheck
 from gyronet.deploy.stream.lpbus_link import SensorError
 from gyronet.deploy.stream.lpbus_probe import LayoutError
@@ -33,6 +35,7 @@ log = logging.getLogger(__name__)
 
 REQUIRED = ("time_s", "temp_c", "gyro_x_dps", "gyro_y_dps", "gyro_z_dps")
 PROGRESS_S = 60.0  # how often a recording says how far it is
+FS_SLOT = 16  # characters kept for the ``# fs_hz=`` value, so that the rate the stamps show can replace it at the end
 
 
 def record_stream(port: str, output: str | Path, baud: int = 921600, lpbus: LpBusSetup | None = None,
@@ -79,6 +82,7 @@ def record_stream(port: str, output: str | Path, baud: int = 921600, lpbus: LpBu
     items = read_samples(opened, parser, url=port, baud=baud, timeout_s=read_timeout_s, should_stop=should_stop,
                          on_reopen=start.reopen_hook(parser, port), **dict(reconnect or {}))
     stopped, offset_s, last_s, interval_s, restarts = "port_gone", 0.0, None, 0.0, 0
+    intervals = Counter()  # sample intervals to 4 digits: their median is the rate the file's reader will see
     refusal: Exception | None = None
     progress_at = started + PROGRESS_S  # a line a minute: a chamber run is hours of otherwise silent recording
     try:
@@ -94,6 +98,7 @@ def record_stream(port: str, output: str | Path, baud: int = 921600, lpbus: LpBu
             time_s = row["time_s"] + offset_s
             if last_s is not None and not item.new_segment:
                 interval_s = time_s - last_s
+                intervals[float(f"{interval_s:.4g}")] += 1
             out.write([time_s, *(row[c] for c in start.layout.columns[1:])])
             last_s = time_s
             if time.monotonic() >= progress_at:
@@ -111,10 +116,12 @@ def record_stream(port: str, output: str | Path, baud: int = 921600, lpbus: LpBu
         stopped, refusal = "refused", err
     finally:
         items.close()
+        stamped_hz = _rate_the_stamps_show(out, intervals)
         out.close()
         signals.close()
     summary = {"stopped": stopped, "n_samples": out.n_rows, "faults": counter.as_dict(), "n_faults": counter.n_faults,
                "clock_restarts": restarts, "output": str(out.path), "sensor": start.as_dict(),
+               **({"fs_hz_from_stamps": stamped_hz} if stamped_hz is not None else {}),
                **({"refused": str(refusal)} if refusal is not None else {})}
     log.info("recorded %d samples into %s (%s); %s", out.n_rows, out.path, stopped, counter.summary())
     if summary_path is not None:
@@ -123,6 +130,25 @@ def record_stream(port: str, output: str | Path, baud: int = 921600, lpbus: LpBu
     if refusal is not None:
         raise refusal
     return summary
+
+
+def _rate_the_stamps_show(out: "_RecordingFile", intervals: Counter) -> float | None:
+    """Where the sensor's reported rate is not its stamps' (a loader would refuse the file), write the stamps' rate
+    as ``# fs_hz=`` instead, with a warning; that rate, else None."""
+    if out.fs_hz is None or not intervals:
+        return None
+    half, seen = sum(intervals.values()) / 2.0, 0
+    for median_s, count in sorted(intervals.items()):
+        seen += count
+        if seen >= half:
+            break
+    if not median_s > 0 or abs(out.fs_hz * median_s - 1.0) <= FS_TOLERANCE:
+        return None
+    stamped_hz = float(f"{1.0 / median_s:.4g}")
+    log.warning("the sensor reported %g Hz, but its time stamps are %g Hz apart (median interval %g s): "
+                "# fs_hz=%g written, as the stamps show", out.fs_hz, stamped_hz, median_s, stamped_hz)
+    out.set_fs_hz(stamped_hz)
+    return stamped_hz
 
 
 def _metadata(start) -> dict[str, str]:
@@ -141,13 +167,25 @@ class _RecordingFile:
 
     def __init__(self, path: str | Path, columns: list[str], meta: Mapping[str, str]):
         self.path, self.n_rows = Path(path), 0
+        self.fs_hz = float(meta["fs_hz"]) if "fs_hz" in meta else None
         try:
             self.path.parent.mkdir(parents=True, exist_ok=True)
             self._fd = os.open(self.path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
         except OSError as err:
             raise OutputError(f"{self.path}: cannot write the recording ({err.strerror})") from None
-        head = "".join(f"# {key}={value}\n" for key, value in meta.items()) + ",".join(columns) + "\n"
-        self._write(head)
+        head = b""
+        for key, value in meta.items():
+            if key == "fs_hz":
+                self._fs_at, value = len(head) + len(b"# fs_hz="), f"{value:<{FS_SLOT}}"  # read back stripped
+            head += f"# {key}={value}\n".encode()
+        self._write(head.decode() + ",".join(columns) + "\n")
+
+    def set_fs_hz(self, fs_hz: float) -> None:
+        """Overwrite the ``# fs_hz=`` value in place (its slot is :data:`FS_SLOT` characters wide)."""
+        os.lseek(self._fd, self._fs_at, os.SEEK_SET)
+        self._write(f"{fs_hz:<{FS_SLOT}g}")
+        os.lseek(self._fd, 0, os.SEEK_END)
+        self.fs_hz = fs_hz
 
     def write(self, values: list[float]) -> None:
         self._write(",".join(repr(float(v)) for v in values) + "\n")
