@@ -250,6 +250,12 @@ def test_the_final_run_makes_the_best_artifact_with_the_final_overrides(app: Pat
     results = OmegaConf.load(app / "sweep" / "optimization_results.yaml")
     assert results.best_overrides[-1] == "stage=final"
     assert (app / "sweep" / best["job_dir"] / "compensator" / "stage.txt").read_text() == "search"
+    # run again, finished: the final run is reused from the history, not set aside as interrupted and run again
+    final = history(app)["final_run"]
+    assert final["job_idx"] == max(e["job_idx"] for e in jobs) + 1 and final["overrides"][-1] == "stage=final"
+    proc = run_app(app)
+    assert calls(app) == len(jobs) + 1 and "final run reused" in proc.stdout + proc.stderr
+    assert not (app / "sweep" / "interrupted").exists() and (copied / "stage.txt").read_text() == "final"
 
 
 def test_a_final_run_that_cannot_start_leaves_the_best_search_jobs_artifact(app: Path) -> None:

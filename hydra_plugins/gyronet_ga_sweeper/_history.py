@@ -111,6 +111,7 @@ class History:
     fixed_overrides: List[str]
     generations: List[Generation] = field(default_factory=list)
     options: Dict[str, Any] = field(default_factory=dict)
+    final_run: Optional[Dict[str, Any]] = None  # the best's run with ``final``'s overrides: job_idx, job_dir, overrides
 
     def evaluations(self) -> List[Evaluation]:
         """Every individual of every generation, in order."""
@@ -136,13 +137,16 @@ class History:
     def next_job_idx(self) -> int:
         """The job number after the highest one used so far."""
         used = [e.job_idx for e in self.evaluations() if e.job_idx is not None]
+        if self.final_run is not None:
+            used.append(self.final_run["job_idx"])
         return max(used) + 1 if used else 0
 
     def save(self, path: Path) -> None:
         """Write atomically, so an interruption never leaves a truncated file."""
         doc = {"version": FORMAT_VERSION, "search_space": self.search_space,
                "fixed_overrides": self.fixed_overrides, "options": self.options,
-               "generations": [g.to_json() for g in self.generations]}
+               "generations": [g.to_json() for g in self.generations],
+               **({"final_run": self.final_run} if self.final_run is not None else {})}
         tmp = path.with_name(path.name + ".tmp")
         tmp.write_text(json.dumps(doc, indent=1))
         os.replace(tmp, path)
@@ -154,7 +158,7 @@ class History:
             raise ValueError(f"{path}: unknown format version {doc.get('version')!r}")
         return cls(search_space=doc["search_space"], fixed_overrides=doc["fixed_overrides"],
                    generations=[Generation.from_json(g) for g in doc["generations"]],
-                   options=doc.get("options", {}))
+                   options=doc.get("options", {}), final_run=doc.get("final_run"))
 
 
 def score(ret: JobReturn) -> Tuple[float, str, Optional[str]]:

@@ -241,16 +241,26 @@ class GASweeperImpl(Sweeper):
             log.warning("no job returned a finite value: no best parameters")
             return
         log.info("best value %.6g with %s", best.fitness, " ".join(to_overrides(best.params)))
-        self._copy_best((self._final_run(best) if final_run else None) or best.job_dir)
+        self._copy_best((self._final_run(best, history) if final_run else None) or best.job_dir)
 
-    def _final_run(self, best: Evaluation) -> Optional[str]:
-        """Run the best individual once more with ``final``'s overrides; its job dir, or None."""
+    def _final_run(self, best: Evaluation, history: History) -> Optional[str]:
+        """Run the best individual once more with ``final``'s overrides; its job dir, or None.
+
+        The run is kept in the history: a finished sweep run again reuses it (its folder is not an
+        interrupted job's), unless the best or ``final`` changed.
+        """
         final = self.options.final
         if not final or not self.options.best_artifact:
             return None
+        overrides = self._with_final(best.overrides)
+        done = history.final_run
+        if done is not None and done["overrides"] == overrides and done["job_dir"] is not None \
+                and (self.sweep_dir / done["job_dir"] / self.options.best_artifact).is_dir():
+            log.info("final run reused: job %d (%s)", done["job_idx"], done["job_dir"])
+            return done["job_dir"]
         log.info("final run of the best (job %d) with %s", self.job_idx, " ".join(f"{k}={v}" for k, v in final.items()))
         try:
-            ret = self.launcher.launch([self._with_final(best.overrides)], initial_job_idx=self.job_idx)[0]
+            ret = self.launcher.launch([overrides], initial_job_idx=self.job_idx)[0]
         except Exception as err:  # a bad final override or a launcher failure must not lose the sweep's results
             log.warning("the final run could not start (%s: %s): copying the best search job's %s instead",
                         type(err).__name__, str(err).splitlines()[0] if str(err) else "", self.options.best_artifact)
@@ -263,7 +273,10 @@ class GASweeperImpl(Sweeper):
                         status.lower(), error, self.options.best_artifact)
             return None
         log.info("final run: value %.6g (the search job's %.6g)", fitness, best.fitness)
-        return job_dir(ret, self.sweep_dir)
+        history.final_run = {"job_idx": self.job_idx - 1, "job_dir": job_dir(ret, self.sweep_dir),
+                             "overrides": overrides, "fitness": fitness}
+        history.save(self.sweep_dir / HISTORY_FILE)
+        return history.final_run["job_dir"]
 
     def _with_final(self, overrides: List[str]) -> List[str]:
         """``overrides`` with ``final``'s in place of any for the same keys."""
