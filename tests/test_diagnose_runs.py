@@ -206,3 +206,23 @@ def test_a_campaign_too_short_for_the_test_says_no_effect_can_be_shown(tmp_path)
                    "rounds": [{"n_shifts": deals, "null_max_quantile": 0.7, "candidates": [], "tried": []}]}
         write_runs_report(tmp_path, diagnosis, details, ["z_down", "z_down"], [])
         assert says in (tmp_path / "report.md").read_text()
+
+
+def test_a_campaign_report_shows_its_figures(tmp_path):
+    """diagnose.md promises the residual before and after as figures; a campaign wrote none."""
+    from gyronet.analysis.diagnose import diagnose
+
+    paths = []
+    for i in range(2):
+        sim = simulate("random", fs_hz=FS_HZ, seed=40 + i, sensor_seed=3, duration_s=2 * 3600,
+                       sensor={"turn_on_bias_dps": 0.03})
+        paths.append(str(tmp_path / f"run{i}.csv"))
+        write_simulation(sim, paths[-1])
+    model = lambda n: RBFNet(n, 3, 6, rbf_inputs=[0], linear=True, temp_degree=3, clamp=True)  # noqa: E731
+    diagnose({"paths": paths, "rate_tau_s": 5.0}, model, tmp_path / "out", train_cfg={"progress": False, "max_epochs": 60},
+             options={"n_shifts": 19, "max_effects": 1})
+    report = (tmp_path / "out" / "report.md").read_text()
+    assert "## Figures" in report
+    for name in ("residual_by_run.png", "residual_vs_temperature.png"):
+        assert f"![{name}]({name})" in report
+        assert (tmp_path / "out" / name).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

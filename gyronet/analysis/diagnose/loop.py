@@ -118,7 +118,7 @@ def diagnose(data_options: Mapping[str, Any], make_model: Callable[[int], torch.
         from gyronet.analysis.diagnose.runs import diagnose_runs
 
         return diagnose_runs(paths, {**data_options, **runs_options}, make_model, out_dir, optim, train_cfg, seed,
-                             options)
+                             options, plots)
     if paths:
         data_options["path"] = paths[0]
     if not data_options.get("path"):

@@ -75,6 +75,37 @@ def write_figures(out_dir: Path, rows: ScreenRows, stages: Sequence[Any], record
     return written
 
 
+def write_runs_figures(out_dir: Path, rows: ScreenRows, stages: Sequence[Any], names: Sequence[str]) -> list[str]:
+    """A campaign's baseline and final residual, run by run and versus temperature, into ``out_dir``; file names."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    residual = {label: rows.target - rows.predict(s.model, s.data.features)
+                for label, s in (("baseline", stages[0]), ("final", stages[-1]))}
+    temp = rows.features([{"kind": "temp"}])[:, 0]
+    fig, axes = plt.subplots(4, len(names), figsize=(1 + min(4 * len(names), 16), 9), sharex="col", sharey="row",
+                             squeeze=False)
+    for run, name in enumerate(names):
+        mask = rows.recording == run
+        hours = (rows.time_s[mask] - rows.time_s[mask][0]) / 3600.0
+        for i, axis in enumerate(AXES):
+            for label, values in residual.items():
+                line, = axes[i, run].plot(hours, values[mask, i], lw=0.8, label=label)
+                axes[i, run].axhline(values[mask, i].mean(), color=line.get_color(), ls="--", lw=0.8)
+            axes[i, run].grid(alpha=0.3)
+            axes[i, 0].set_ylabel(f"{axis} residual, deg/s")
+        axes[0, run].set_title(name)
+        axes[3, run].plot(hours, temp[mask], color="tab:red")
+        axes[3, run].set_xlabel("time since the run's start, h")
+    axes[3, 0].set_ylabel("temp_c")
+    axes[0, 0].legend(loc="best")
+    fig.suptitle(f"residual ({rows.block_s:g} s means) in each run; dashed: the run's mean (turn-on bias, orientation)")
+    return [_save(fig, out_dir / "residual_by_run.png"),
+            _scatter(out_dir / "residual_vs_temperature.png", temp, "temperature, degC", residual)]
+
+
 def _scatter(path: Path, x: np.ndarray, label: str, residual: Mapping[str, np.ndarray]) -> str:
     import matplotlib.pyplot as plt
 

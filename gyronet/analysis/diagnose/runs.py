@@ -38,6 +38,7 @@ from gyronet.analysis.diagnose.candidates import candidate_specs, describe, effe
 from gyronet.analysis.diagnose.candidates import source_columns
 from gyronet.analysis.diagnose.choose import approximations, complexity, ranked
 from gyronet.analysis.diagnose.report import approximation_sentence
+from gyronet.analysis.diagnose.report_figures import write_runs_figures
 from gyronet.analysis.diagnose.rows import ScreenRows
 from gyronet.analysis.diagnose.runlevel import RunCandidate, run_candidates, screen_runs
 from gyronet.analysis.diagnose.screen import screen
@@ -115,8 +116,9 @@ def _joint_null(runs: Any, within: Any, rng: np.random.Generator) -> None:
 
 def diagnose_runs(paths: Sequence[str], data_options: Mapping[str, Any], make_model: Callable[[int], torch.nn.Module],
                   out_dir: str | Path, optim: Callable | None = None, train_cfg: Mapping[str, Any] | None = None,
-                  seed: int = 0, options: Any = None) -> dict[str, Any]:
-    """Diagnose a campaign; write ``diagnosis.json``, ``report.md`` and the baseline and final bundles."""
+                  seed: int = 0, options: Any = None, plots: bool = True) -> dict[str, Any]:
+    """Diagnose a campaign; write ``diagnosis.json``, ``report.md`` (with PNG figures when ``plots``) and the
+    baseline and final bundles."""
     from gyronet.training.runs import fit_by_run, training_data
 
     options = options if isinstance(options, DiagnoseOptions) else DiagnoseOptions(**dict(options or {}))
@@ -252,7 +254,8 @@ def diagnose_runs(paths: Sequence[str], data_options: Mapping[str, Any], make_mo
                                              "metrics": s.metrics, "folds": s.folds} for s in stages],
                "next": [a.to_dict() for a in advice]}
     write_text(out_dir / "diagnosis_details.json", json.dumps(_jsonable(details), indent=2) + "\n")
-    write_runs_report(out_dir, diagnosis, details, orientations, advice)
+    figures = write_runs_figures(out_dir, rows, stages, [r.name for r in stage.data.runs]) if plots else []
+    write_runs_report(out_dir, diagnosis, details, orientations, advice, figures)
     return diagnosis
 
 

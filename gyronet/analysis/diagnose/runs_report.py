@@ -11,8 +11,9 @@ from gyronet.analysis.diagnose.report import alternatives_lines
 
 
 def write_runs_report(out_dir: Path, diagnosis: Mapping[str, Any], details: Mapping[str, Any],
-                      orientations: Sequence[str | None], advice: Sequence[Any]) -> None:
-    """Write ``out_dir/report.md`` of a campaign: the result, each effect, how it was tested, what to record next."""
+                      orientations: Sequence[str | None], advice: Sequence[Any], figures: Sequence[str] = ()) -> None:
+    """Write ``out_dir/report.md`` of a campaign: the result, each effect, how it was tested, its ``figures`` (file
+    names in ``out_dir``), what to record next."""
     runs = details["runs"]
     lines = [f"# Diagnosis of a campaign of {len(runs)} runs", "",
              "Runs: " + ", ".join(f"`{r['name']}` ({r['orientation'] or 'no accelerometer'})" for r in runs) + ".", "",
@@ -61,5 +62,9 @@ def write_runs_report(out_dir: Path, diagnosis: Mapping[str, Any], details: Mapp
                   + "." for t in round_["tried"]]
         if round_["tried"]:
             lines.append("")
+    if figures:
+        lines += ["## Figures", "", "Baseline and final residual, 60 s means, of the networks trained on every run "
+                  "(fit, not held-out error: the tables above hold that).", ""]
+        lines += [f"![{name}]({name})" for name in figures] + [""]
     lines += advice_lines(advice)
     write_text(out_dir / "report.md", "\n".join(lines))
