@@ -11,20 +11,18 @@ from gyronet.deploy.stream.priority import normal_thread, use_realtime
 linux_only = pytest.mark.skipif(not hasattr(os, "sched_setscheduler"), reason="SCHED_FIFO is Linux's")
 
 
-def _fifo_allowed() -> bool:
+@pytest.fixture
+def fifo() -> None:
+    """Skip where this user may not use SCHED_FIFO; probed when a test needs it, not as the file is collected."""
+    if not hasattr(os, "sched_setscheduler"):
+        pytest.skip("SCHED_FIFO is Linux's")
     try:
         use_realtime(1)()
     except ConfigError:
-        return False
-    return True
+        pytest.skip("this user may not use SCHED_FIFO (not root, no CAP_SYS_NICE)")
 
 
-needs_fifo = pytest.mark.skipif(not hasattr(os, "sched_setscheduler") or not _fifo_allowed(),
-                                reason="this user may not use SCHED_FIFO (not root, no CAP_SYS_NICE)")
-
-
-@needs_fifo
-def test_the_loop_runs_under_fifo_and_gets_the_normal_scheduler_back():
+def test_the_loop_runs_under_fifo_and_gets_the_normal_scheduler_back(fifo):
     restore = use_realtime(10)
     try:
         assert os.sched_getscheduler(0) == os.SCHED_FIFO
@@ -34,8 +32,7 @@ def test_the_loop_runs_under_fifo_and_gets_the_normal_scheduler_back():
     assert os.sched_getscheduler(0) == os.SCHED_OTHER
 
 
-@needs_fifo
-def test_a_thread_started_by_the_loop_inherits_fifo_and_goes_back_to_normal():
+def test_a_thread_started_by_the_loop_inherits_fifo_and_goes_back_to_normal(fifo):
     seen = []
 
     def worker():
