@@ -11,11 +11,14 @@ from __future__ import annotations
 
 import contextlib
 import errno
+import json
 import logging
+import math
+import numbers
 import os
 import tempfile
 from pathlib import Path
-from typing import Iterator
+from typing import Any, Iterator, Mapping
 
 from gyronet.errors import GyronetError
 
@@ -67,6 +70,30 @@ def write_text(path: str | os.PathLike, text: str) -> None:
     """``path`` holding ``text``, written whole or not at all (``atomic_output``)."""
     with atomic_output(path) as tmp:
         tmp.write_text(text)
+
+
+def write_json(path: str | os.PathLike, value: Any, indent: int = 2) -> None:
+    """``value`` as strict JSON (:func:`jsonable`), written whole or not at all: any reader takes it, jq and
+    JavaScript too, where a bare ``NaN`` is an error."""
+    write_text(path, json.dumps(jsonable(value), indent=indent, allow_nan=False) + "\n")
+
+
+def jsonable(value: Any) -> Any:
+    """``value`` with only JSON's types: numpy arrays and numbers as Python's, tuples as lists, keys as text,
+    NaN and infinities as None (null: a figure with no value)."""
+    if isinstance(value, Mapping):
+        return {str(k): jsonable(v) for k, v in value.items()}
+    if hasattr(value, "tolist") and not isinstance(value, (str, bytes)):  # a numpy array or number
+        value = value.tolist()
+    if isinstance(value, (list, tuple)):
+        return [jsonable(v) for v in value]
+    if isinstance(value, bool) or value is None:
+        return value
+    if isinstance(value, numbers.Integral):
+        return int(value)
+    if isinstance(value, numbers.Real):
+        return float(value) if math.isfinite(value) else None
+    return value
 
 
 _FULL = {errno.ENOSPC, errno.EDQUOT, errno.EFBIG}

@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 from omegaconf import DictConfig, OmegaConf
 
+from gyronet.atomic import write_text
 from gyronet.allan import allan_report, format_table, plot_allan, report_to_json
 from gyronet.model import recalibration
 from gyronet.recordings.data import ALLAN_COLUMNS, load_recording
@@ -52,7 +53,7 @@ def main(cfg: DictConfig) -> None:
             (log.warning if verdict["recalibrate"] else log.info)(recalibration.summary_line(axis, verdict))
     output = Path(cfg.output)
     output.parent.mkdir(parents=True, exist_ok=True)
-    output.write_text(report_to_json(report), encoding="utf-8")
+    write_text(output, report_to_json(report))
     plot_allan(report, path=output.with_suffix(".png"), title=f"Allan deviation: {Path(cfg.input).name}")
     for line in format_table(report).splitlines():
         log.info(line)

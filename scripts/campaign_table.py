@@ -1,5 +1,4 @@
 """The real-data table, each run held out in turn: python scripts/campaign_table.py 'runs=[A.csv,B.csv]' output=T.md."""
-import json
 import logging
 import sys
 from pathlib import Path
@@ -7,7 +6,7 @@ from pathlib import Path
 from hydra.utils import instantiate
 from omegaconf import DictConfig, OmegaConf
 
-from gyronet.atomic import write_text
+from gyronet.atomic import write_json, write_text
 from gyronet.errors import GyronetError
 from gyronet.analysis.campaign import held_out_table, to_markdown
 
@@ -34,7 +33,7 @@ def main(cfg: DictConfig) -> None:
     output = Path(cfg.output)
     output.parent.mkdir(parents=True, exist_ok=True)
     write_text(output, markdown)
-    write_text(output.with_suffix(".json"), json.dumps(table, indent=2) + "\n")
+    write_json(output.with_suffix(".json"), table)
     log.info("held-out runs:\n%s", markdown)
 
 

@@ -11,12 +11,11 @@ DIR (default outputs/rate_table/).
 from __future__ import annotations
 
 import argparse
-import json
 import logging
 from pathlib import Path
 
 from gyronet.analysis.rate_table import rate_table, to_markdown, training_rows
-from gyronet.atomic import write_text
+from gyronet.atomic import write_json, write_text
 from gyronet.sim import simulate, write_simulation
 
 log = logging.getLogger(__name__)
@@ -56,7 +55,7 @@ def main() -> None:
             f"- {name}: " + (got if isinstance(got, str) else " / ".join(f"{v:.2f}x" for v in got))
             for name, got in figures["train"].items())
     write_text(out / "rate_table.md", markdown + "\n")
-    write_text(out / "rate_table.json", json.dumps(figures, indent=2))
+    write_json(out / "rate_table.json", figures)
     print(markdown)
 
 

@@ -1,5 +1,4 @@
 """The paper's Table 1 on held-out recordings: python scripts/table.py input=F.csv '+bundles={name: D/compensator}'."""
-import json
 import logging
 import sys
 from pathlib import Path
@@ -7,7 +6,7 @@ from pathlib import Path
 from omegaconf import DictConfig, OmegaConf
 
 from gyronet.analysis.table import PAPER_TABLE_1, held_out_paths, runs_to_markdown, table_rows, table_runs, to_markdown
-from gyronet.atomic import write_text
+from gyronet.atomic import write_json, write_text
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # scripts/_cli.py, also when this file is run by path
 from _cli import command  # noqa: E402
@@ -30,7 +29,7 @@ def main(cfg: DictConfig) -> None:
     output = Path(cfg.output)
     output.parent.mkdir(parents=True, exist_ok=True)
     write_text(output, markdown)
-    write_text(output.with_suffix(".json"), json.dumps({**figures, **options, "paper": PAPER_TABLE_1}, indent=2))
+    write_json(output.with_suffix(".json"), {**figures, **options, "paper": PAPER_TABLE_1})
     log.info("Table 1 on %s:\n%s", ", ".join(paths), markdown)
 
 

@@ -154,3 +154,18 @@ def test_compensated_file_reads_back_within_1e12(tmp_path, with_nan):
     frame = pd.read_csv(write_compensated(tmp_path / "o.csv", columns, tmp_path), comment="#")
     for key, value in columns.items():
         np.testing.assert_allclose(frame[key].to_numpy(), value, rtol=1e-12, atol=0, equal_nan=True)
+
+
+def test_json_outputs_are_strict_json_any_reader_takes(tmp_path):
+    """diagnosis.json, the tables' JSON, kalman.json and report.json: NaN and inf as null, numpy as Python."""
+    import json
+
+    from gyronet.atomic import write_json
+
+    value = {"nan": float("nan"), "inf": np.float32(np.inf), "row": np.array([1.5, np.nan]), "n": np.int64(3),
+             "ok": np.bool_(True), "pair": (np.float64(-np.inf), 2), 7: "key"}
+    write_json(tmp_path / "v.json", value)
+    text = (tmp_path / "v.json").read_text()
+    assert "NaN" not in text and "Infinity" not in text
+    assert json.loads(text) == {"nan": None, "inf": None, "row": [1.5, None], "n": 3, "ok": True,
+                                "pair": [None, 2], "7": "key"}

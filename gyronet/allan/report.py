@@ -10,6 +10,7 @@ import numpy as np
 
 from gyronet.allan.deviation import log_taus, oadev
 from gyronet.allan.noise import MIN_CLUSTERS, noise_parameters
+from gyronet.atomic import jsonable
 from gyronet.errors import GyronetError
 from gyronet.recordings.data import GAP_FACTOR
 from gyronet.recordings.guard import GYRO_RANGE_DPS, bad_gyro
@@ -112,19 +113,7 @@ def allan_report(time_s: np.ndarray, rate_dps: np.ndarray, fs_hz: float | None =
 
 def report_to_json(report: Mapping) -> str:
     """The report as JSON, NaN written as ``null`` (strict JSON has no NaN)."""
-    return json.dumps(_strict(report), indent=1) + "\n"
-
-
-def _strict(value):
-    if isinstance(value, Mapping):
-        return {str(k): _strict(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple, np.ndarray)):
-        return [_strict(v) for v in value]
-    if isinstance(value, (float, np.floating)):
-        return float(value) if math.isfinite(value) else None
-    if isinstance(value, np.integer):
-        return int(value)
-    return value
+    return json.dumps(jsonable(report), indent=1, allow_nan=False) + "\n"
 
 
 def format_table(report: Mapping) -> str:

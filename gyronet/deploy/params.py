@@ -22,7 +22,6 @@ type`` separated by tabs, the type a MAVLink ``MAV_PARAM_TYPE`` (6 INT32, 2 INT8
 """
 from __future__ import annotations
 
-import json
 import logging
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -30,6 +29,7 @@ from typing import Any
 
 import numpy as np
 
+from gyronet.atomic import write_json
 from gyronet.deploy.bundle_curve import bundle_curve, clamp_range, steady_features  # noqa: F401 (re-exported)
 from gyronet.deploy.as_flown import (DEFAULT_TEMP_RATE_C_PER_S, difference_error, history_error, minimax_cubic,
                                      px4_stated_error)
@@ -259,7 +259,7 @@ def export_params(bundle_dir: str | Path, output: str | Path, stack: str = "px4"
     output = Path(output)
     output.parent.mkdir(parents=True, exist_ok=True)
     write_text(output, params_text(rows, name, vehicle_id, component_id, source=str(bundle_dir)))
-    write_text(output.with_suffix(".json"), json.dumps(summary, indent=2) + "\n")
+    write_json(output.with_suffix(".json"), summary)
     return summary
 
 

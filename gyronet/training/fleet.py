@@ -18,7 +18,7 @@ import os
 from pathlib import Path
 from typing import Any, Mapping, Sequence
 
-from gyronet.atomic import write_text
+from gyronet.atomic import write_json, write_text
 from gyronet.errors import GyronetError
 from gyronet.recordings.data import AXES, TRUTH_SUFFIX
 
@@ -83,7 +83,7 @@ def write_units(sweep_dir: str | os.PathLike, units: Mapping[str, str]) -> Path:
     """Record the fleet's units in the sweep folder, so the table also lists units whose job never ran."""
     path = Path(sweep_dir) / UNITS_FILE
     path.parent.mkdir(parents=True, exist_ok=True)
-    write_text(path, json.dumps({"units": dict(units)}, indent=2) + "\n")
+    write_json(path, {"units": dict(units)})
     return path
 
 
@@ -194,7 +194,7 @@ def write_table(table: Mapping[str, Any], output: str | os.PathLike) -> Path:
     output = Path(output)
     output.parent.mkdir(parents=True, exist_ok=True)
     write_text(output, to_markdown(table))
-    write_text(output.with_suffix(".json"), json.dumps(table, indent=2) + "\n")
+    write_json(output.with_suffix(".json"), table)
     return output
 
 

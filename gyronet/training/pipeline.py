@@ -232,15 +232,3 @@ def _log_run(writer: Any, metrics: Mapping[str, float], evaluations: Mapping[str
             tb.log_figure(writer, f"eval/{name}/drift_sigma", plots.drift_sigma_band(arrays))
     tb.log_hparams(writer, hparams, {k: v for k, v in metrics.items() if k.startswith("val/") and np.isfinite(v)})
     writer.flush()
-
-
-def _jsonable(value: Any) -> Any:
-    if isinstance(value, dict):
-        return {str(k): _jsonable(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_jsonable(v) for v in value]
-    if isinstance(value, np.ndarray):
-        return value.tolist()
-    if isinstance(value, (np.floating, np.integer)):
-        return value.item()
-    return value

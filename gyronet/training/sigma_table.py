@@ -19,14 +19,13 @@ a worst hour above 2x the bar asks for one.
 """
 from __future__ import annotations
 
-import json
 import logging
 from pathlib import Path
 from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from gyronet.atomic import write_text
+from gyronet.atomic import write_json, write_text
 from gyronet.bundle.offline import SIGMA_COLUMNS
 from gyronet.model.error_bar import BLOCK_S
 from gyronet.recordings.data import AXES, load_recording, load_truth
@@ -228,7 +227,7 @@ def write_table(rows: Sequence[Mapping[str, Any]], output: str | Path, config: M
     output = Path(output)
     output.parent.mkdir(parents=True, exist_ok=True)
     write_text(output, to_markdown(rows))
-    write_text(output.with_suffix(".json"), json.dumps({"config": dict(config), "rows": list(rows)}, indent=2) + "\n")
+    write_json(output.with_suffix(".json"), {"config": dict(config), "rows": list(rows)})
     return output
 
 

@@ -8,14 +8,13 @@ diagnoses; this module only reads what they wrote.
 """
 from __future__ import annotations
 
-import json
 import os
 from pathlib import Path
 from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from gyronet.atomic import write_text
+from gyronet.atomic import write_json, write_text
 from gyronet.bundle.compensator import Compensator
 from gyronet.recordings.data import AXES, load_recording, load_truth
 from gyronet.training.dataset import block_rmse
@@ -101,7 +100,7 @@ def write_table(rows: Sequence[Mapping[str, Any]], output: str | os.PathLike, se
     output.parent.mkdir(parents=True, exist_ok=True)
     write_text(output, to_markdown(rows))
     everything = {"settings": dict(settings), "rows": list(rows)}
-    write_text(output.with_suffix(".json"), json.dumps(everything, indent=2) + "\n")
+    write_json(output.with_suffix(".json"), everything)
     return output
 
 

@@ -32,7 +32,6 @@ round's candidates, every stage's metrics) and the report's PNG figures.
 """
 from __future__ import annotations
 
-import json
 import logging
 import time
 from dataclasses import asdict
@@ -42,7 +41,7 @@ from typing import Any, Callable, Mapping
 import numpy as np
 import torch
 
-from gyronet.atomic import write_text
+from gyronet.atomic import write_json
 from gyronet.recordings.data import AXES
 from gyronet.training.dataset import load_cached
 from gyronet.errors import GyronetError
@@ -56,7 +55,7 @@ from gyronet.analysis.diagnose.screen import screen
 from gyronet.analysis.diagnose.stages import Stage, Trainer
 from gyronet.bundle.io import save_bundle
 from gyronet.model.features import feature_name
-from gyronet.training.pipeline import _jsonable, _meta
+from gyronet.training.pipeline import _meta
 
 log = logging.getLogger(__name__)
 
@@ -222,13 +221,13 @@ def diagnose(data_options: Mapping[str, Any], make_model: Callable[[int], torch.
         "final": {"inputs": stage.data.feature_names, "val_rmse_dps": stage.val_rmse()},
     }
     out_dir.mkdir(parents=True, exist_ok=True)
-    write_text(out_dir / "diagnosis.json", json.dumps(diagnosis, indent=2) + "\n")
+    write_json(out_dir / "diagnosis.json", diagnosis)
     details = {"options": asdict(options), "n_blocks": len(rows), "n_blocks_outside": n_all - len(rows),
                "rounds": rounds, "stages": [{"inputs": s.data.feature_names, "features": s.data.features,
                                              "metrics": s.metrics, "held_out_dps": s.held_out}
                                             for s in stages]}
     write_report(out_dir, diagnosis, details, rows, stages, plots=plots)
     details["runtime_s"] = time.monotonic() - started
-    write_text(out_dir / "diagnosis_details.json", json.dumps(_jsonable(details), indent=2) + "\n")
+    write_json(out_dir / "diagnosis_details.json", details)
     log.info("diagnosis done in %.1f s: %d effect(s)", details["runtime_s"], len(effects))
     return diagnosis

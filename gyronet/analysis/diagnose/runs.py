@@ -21,7 +21,6 @@ cannot show and the cheapest run that would show it (:mod:`.advice`).
 """
 from __future__ import annotations
 
-import json
 import logging
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -30,7 +29,7 @@ from typing import Any, Callable, Mapping, Sequence
 import numpy as np
 import torch
 
-from gyronet.atomic import write_text
+from gyronet.atomic import write_json
 from gyronet.recordings.data import AXES
 from gyronet.analysis.diagnose.options import DiagnoseOptions
 from gyronet.analysis.diagnose.advice import orientation_label, record_advice, runs_advice
@@ -45,7 +44,7 @@ from gyronet.analysis.diagnose.screen import screen
 from gyronet.analysis.diagnose.runs_report import write_runs_report
 from gyronet.bundle.io import save_bundle
 from gyronet.model.features import feature_name
-from gyronet.training.pipeline import _jsonable, _meta
+from gyronet.training.pipeline import _meta
 
 log = logging.getLogger(__name__)
 
@@ -241,7 +240,7 @@ def diagnose_runs(paths: Sequence[str], data_options: Mapping[str, Any], make_mo
                  "final": {"inputs": stage.data.feature_names, "val_rmse_dps": stage.val_rmse()},
                  "runs": stage.folds, "note": NOTE}
     out_dir.mkdir(parents=True, exist_ok=True)
-    write_text(out_dir / "diagnosis.json", json.dumps(_jsonable(diagnosis), indent=2) + "\n")
+    write_json(out_dir / "diagnosis.json", diagnosis)
     orientations = _orientations(recordings)
     advice = runs_advice(orientations)
     union_c = (min(float(r.temp_c.min()) for r in recordings), max(float(r.temp_c.max()) for r in recordings))
@@ -253,7 +252,7 @@ def diagnose_runs(paths: Sequence[str], data_options: Mapping[str, Any], make_mo
                "rounds": rounds, "stages": [{"inputs": s.data.feature_names, "run_offsets": s.data.run_offsets,
                                              "metrics": s.metrics, "folds": s.folds} for s in stages],
                "next": [a.to_dict() for a in advice]}
-    write_text(out_dir / "diagnosis_details.json", json.dumps(_jsonable(details), indent=2) + "\n")
+    write_json(out_dir / "diagnosis_details.json", details)
     figures = write_runs_figures(out_dir, rows, stages, [r.name for r in stage.data.runs]) if plots else []
     write_runs_report(out_dir, diagnosis, details, orientations, advice, figures)
     return diagnosis

@@ -26,6 +26,7 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
+from gyronet.atomic import jsonable
 from gyronet.model.kalman.whittle import banded_periodogram, fit_order, standard_errors, unpack
 
 log = logging.getLogger(__name__)
@@ -92,8 +93,8 @@ class AxisModel:
 
     def to_dict(self, fs_hz: float) -> dict:
         """Strict-JSON fields (non-finite numbers as null) plus derived figures for people."""
-        out = _json_safe(asdict(self))
-        out["derived"] = _json_safe({"drift_sigma_dps": self.drift_sigma_dps(),
+        out = jsonable(asdict(self))
+        out["derived"] = jsonable({"drift_sigma_dps": self.drift_sigma_dps(),
                                      "correlation_time_s": self.correlation_time_s(fs_hz),
                                      "white_arw_deg_rthr": self.arw_deg_rthr(fs_hz)})
         return out
@@ -140,17 +141,6 @@ class KalmanModel:
     def from_dict(cls, data: dict) -> "KalmanModel":
         axes = tuple(AxisModel.from_dict(data["axes"][name]) for name in AXES[:len(data["axes"])])
         return cls(float(data["fs_hz"]), axes, int(data.get("n_samples", 0)), data.get("method", "whittle"))
-
-
-def _json_safe(value):
-    """Tuples to lists, non-finite floats to None, recursively."""
-    if isinstance(value, dict):
-        return {k: _json_safe(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_json_safe(v) for v in value]
-    if isinstance(value, float) and not math.isfinite(value):
-        return None
-    return value
 
 
 def _number(value) -> float:
