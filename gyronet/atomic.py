@@ -66,6 +66,15 @@ def atomic_output(path: str | os.PathLike) -> Iterator[Path]:
     log.debug("wrote %s", path)
 
 
+def refuse_overwriting(input_path: str | os.PathLike, output_path: str | os.PathLike) -> None:
+    """Refuse, in one line, an output that is the command's own input: a recording cannot be made again."""
+    source, target = Path(input_path), Path(output_path)
+    with contextlib.suppress(OSError):
+        if source.resolve() == target.resolve() or (target.exists() and os.path.samefile(source, target)):
+            raise GyronetError(f"{target}: the output is the input file itself, which writing would replace; "
+                               "choose another output")
+
+
 def write_text(path: str | os.PathLike, text: str) -> None:
     """``path`` holding ``text``, written whole or not at all (``atomic_output``)."""
     with atomic_output(path) as tmp:

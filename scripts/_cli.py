@@ -26,10 +26,11 @@ from hydra.core.hydra_config import HydraConfig
 from hydra.errors import (ConfigCompositionException, HydraException, InstantiationException,
                           MissingConfigException, OverrideParseException)
 from hydra.types import RunMode
-from omegaconf import DictConfig, ListConfig
+from omegaconf import DictConfig, ListConfig, OmegaConf
 from omegaconf.errors import (ConfigAttributeError, ConfigKeyError, MissingMandatoryValue,
                               OmegaConfBaseException)
 
+from gyronet.atomic import refuse_overwriting
 from gyronet.errors import ConfigError, fail, in_chain, one_line, user_error
 
 from _settings import check_settings, config_keys, unknown_setting  # scripts/_settings.py, beside this file
@@ -132,6 +133,8 @@ def _guard(task: Task, schemas: Mapping[str, Any], required: Sequence[str]) -> T
     def guarded(cfg: DictConfig) -> Any:
         try:
             check_settings(cfg, schemas, required)
+            if "input" in cfg and "output" in cfg and not any(OmegaConf.is_missing(cfg, k) for k in ("input", "output")):
+                refuse_overwriting(str(cfg.input), str(cfg.output))  # compensate, convert, allan, ...
             return task(cfg)
         except Exception as err:
             message = user_message(err)

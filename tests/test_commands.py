@@ -203,6 +203,13 @@ def results(tmp_path_factory, bad_files) -> dict[str, dict]:
     cases.append({"id": "simulate-unwritable_output", "script": "scripts/simulate.py", "expect": [str(not_a_folder)],
                   "args": [f"output={not_a_folder}/s.csv", "profile=constant", "duration_s=60",
                            f"hydra.run.dir={work / 'simulate' / 'unwritable'}"]})
+    # an output that is the input itself: the recording would be replaced (convert, compensate and allan did)
+    victim = bad_files["no_column"]
+    for name, extra in (("compensate", [f"model={work / 'no_bundle'}"]), ("convert", []), ("allan", [])):
+        cases.append({"id": f"{name}-output_is_input", "script": f"scripts/{name}.py",
+                      "expect": [str(victim), "the output is the input file itself"],
+                      "args": [*extra, f"input={victim}", f"output={victim.parent / '.' / victim.name}",
+                               f"hydra.run.dir={work / name / 'output_is_input'}"]})
     ok = [("help", ["--help"]), ("cfg_job", ["--cfg", "job", "data.path=F.csv"])]
     cases += [{"id": f"train-{case}", "script": "scripts/train.py", "args": args} for case, args in ok]
     # good runs through the same wrapper: a single run into hydra.run.dir, and a -m multirun
@@ -228,10 +235,12 @@ def _default_ids() -> list[str]:
     return [c["id"] for c in bad_input_cases(placeholder, files, placeholder) if default_case(c["id"])]
 
 
-@pytest.mark.parametrize("case", _default_ids() + [f"train-{c}" for c in TRAIN_EXTRA] + ["simulate-unwritable_output"])
-def test_bad_input_is_one_line_and_exit_2(results, case):
+@pytest.mark.parametrize("case", _default_ids() + [f"train-{c}" for c in TRAIN_EXTRA] + ["simulate-unwritable_output"]
+                         + [f"{name}-output_is_input" for name in ("compensate", "convert", "allan")])
+def test_bad_input_is_one_line_and_exit_2(results, bad_files, case):
     result = results[case]
     assert_one_line_error(result, *result["expect"])
+    assert bad_files["no_column"].read_text() == "time_s,temp_c\n0,20\n0.5,20\n1.0,20.1\n"  # no input was replaced
 
 
 def test_help_and_show_config_still_work(results):

@@ -9,7 +9,7 @@ import numpy as np
 
 from gyronet.bundle.compensator import Compensated, Compensator
 from gyronet.recordings.data import AXES, GYRO_COLUMNS, Recording, load_recording, write_recording
-from gyronet.atomic import atomic_output
+from gyronet.atomic import atomic_output, refuse_overwriting
 from gyronet.recordings.fastcsv import write_csv
 
 log = logging.getLogger(__name__)
@@ -77,6 +77,7 @@ def compensate_file(bundle_dir: str | Path, input_path: str | Path, output_path:
     A recording whose rate differs from the bundle's ``fs_hz`` by more than 5 % is refused unless
     ``resample`` (:meth:`Compensator.use_input_rate`); ``startup``: ``use_startup`` options.
     """
+    refuse_overwriting(input_path, output_path)
     compensator = Compensator.load(bundle_dir)
     compensator.use_startup(**dict(startup or {}))
     if compensator.error_bar is not None:
