@@ -102,6 +102,15 @@ def test_training_data_one_or_several_and_clear_errors(paper_csv, cycle_csv):
         training_data(paths=[str(paper_csv), str(paper_csv)])
 
 
+def test_a_copy_of_a_run_under_another_name_is_refused(paper_csv, cycle_csv, tmp_path):
+    """Its fold would be scored on the very samples it was trained on, and look better than any held-out run."""
+    import shutil
+
+    copy = shutil.copy(cycle_csv, tmp_path / "copy_of_cycle.csv")
+    with pytest.raises(GyronetError, match=f"copy_of_cycle.csv holds the same samples as {cycle_csv}"):
+        training_data(paths=[str(paper_csv), str(cycle_csv), str(copy)])
+
+
 def test_leave_one_run_out_mixes_every_start_by_the_held_out_runs_and_trains_the_final_model_on_all(
         paper_csv, cycle_csv, caplog, monkeypatch):
     """Each start is fitted in each fold and weighted on the held-out runs (demeaned); the bundle is the

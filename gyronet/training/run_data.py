@@ -76,6 +76,12 @@ def load_runs(paths: Sequence[str], specs: Sequence[dict], static_rate: Sequence
     if len(set(map(str, paths))) != len(paths):
         raise GyronetError(f"data.paths names a recording twice: {list(paths)}")
     recordings = [load_cached(str(p)) for p in paths]
+    first_with: dict[str, str] = {}
+    for path, rec in zip(paths, recordings):  # a copy under another name would be held out against itself
+        first = first_with.setdefault(rec.checksum(), str(path))
+        if first != str(path):
+            raise GyronetError(f"data.paths: {path} holds the same samples as {first}; each run must be a recording "
+                               "of its own (a copy would score its fold in sample)")
     fs_hz = recordings[0].fs_hz
     for rec in recordings[1:]:
         if abs(rec.fs_hz - fs_hz) > 0.01 * fs_hz:
