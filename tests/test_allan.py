@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from gyronet.allan import (allan_report, continuous_segments, log_taus, noise_parameters, oadev, plot_allan,
+from gyronet.allan import (allan_report, continuous_segments, format_table, log_taus, noise_parameters, oadev, plot_allan,
                            report_to_json)
 from gyronet.recordings.data import write_recording
 from gyronet.errors import GyronetError
@@ -193,6 +193,10 @@ def test_noise_parameters_on_ideal_lines():
     only_white = noise_parameters(taus_s, white)
     assert math.isnan(only_white["rrw_deg_hr_rthr"])
     assert only_white["bias_instability_tau_s"] == pytest.approx(taus_s[-1])
+    # read where the curve still falls, B is an upper bound, and says so in the JSON and the log's table
+    assert only_white["bias_instability_upper_bound"] and not terms["bias_instability_upper_bound"]
+    table = format_table({"x": {**only_white, "taus_s": taus_s}, "y": {**terms, "taus_s": taus_s}})
+    assert table.splitlines()[1].split()[2].startswith("<=") and not table.splitlines()[2].split()[2].startswith("<=")
     assert math.isnan(noise_parameters(taus_s, walk)["arw_deg_rthr"])
 
 

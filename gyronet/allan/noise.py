@@ -33,7 +33,8 @@ def noise_parameters(taus_s: np.ndarray, adev: np.ndarray, max_tau_s: float | No
     -------
     dict
         ``arw_deg_rthr`` (N, deg/sqrt(h)), ``bias_instability_deg_hr`` (B, deg/h),
-        ``bias_instability_tau_s``, ``rrw_deg_hr_rthr`` (K, deg/h/sqrt(h)), and the local slopes
+        ``bias_instability_tau_s``, ``bias_instability_upper_bound`` (B read at the last usable tau, where
+        the curve still falls: the true minimum is lower), ``rrw_deg_hr_rthr`` (K, deg/h/sqrt(h)), and the local slopes
         the fits used, ``arw_slope`` and ``rrw_slope``, at the taus they were read at (the
         window's centre), ``arw_tau_s`` and ``rrw_tau_s``. A term is NaN when the curve has no
         region for it.
@@ -72,6 +73,7 @@ def noise_parameters(taus_s: np.ndarray, adev: np.ndarray, max_tau_s: float | No
     lowest = int(np.argmin(dev))
     result["bias_instability_deg_hr"] = float(dev[lowest] / BIAS_INSTABILITY_FACTOR * 3600.0)
     result["bias_instability_tau_s"] = float(taus[lowest])
+    result["bias_instability_upper_bound"] = lowest == len(taus) - 1  # still falling at the last tau read
     log_tau, log_dev = np.log10(taus), np.log10(dev)
     # sigma = N / sqrt(tau): N is the line's value at tau = 1 s, deg/sqrt(s) -> deg/sqrt(h).
     arw = _fixed_slope_fit(log_tau, log_dev, slice(0, lowest + 1), -0.5, 1.0)

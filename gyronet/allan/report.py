@@ -121,7 +121,8 @@ def format_table(report: Mapping) -> str:
     lines = [f"{'axis':4} {'N deg/rt(h)':>12} {'B deg/h':>10} {'at tau s':>9} {'K deg/h/rt(h)':>14}"]
     for axis in axes_of(report):
         row = report[axis]
-        lines.append(f"{axis:4} {num(row['arw_deg_rthr']):>12} {num(row['bias_instability_deg_hr']):>10}"
+        bias = ("<=" if row.get("bias_instability_upper_bound") else "") + num(row["bias_instability_deg_hr"])
+        lines.append(f"{axis:4} {num(row['arw_deg_rthr']):>12} {bias:>10}"
                      f" {num(row['bias_instability_tau_s']):>9} {num(row['rrw_deg_hr_rthr']):>14}")
     return "\n".join(lines)
 
