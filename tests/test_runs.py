@@ -286,12 +286,14 @@ def test_a_run_outside_the_other_runs_temperatures_is_named_as_an_extrapolation_
     chamber, desk = tmp_path / "chamber.csv", tmp_path / "desk.csv"  # a full cycle, and two hours at 25 degC
     write_simulation(simulate("paper", fs_hz=0.5, seed=1, sensor_seed=0), chamber)
     write_simulation(simulate("constant", fs_hz=0.5, seed=2, sensor_seed=0, duration_s=7200.0), desk)
-    data = training_data(paths=[str(chamber), str(desk)])
+    short = tmp_path / "short.csv"  # 20 min wholly inside the others' temperatures: short, but no extrapolation
+    write_simulation(simulate("constant", fs_hz=0.5, seed=3, sensor_seed=0, duration_s=1200.0), short)
+    data = training_data(paths=[str(chamber), str(desk), str(short)])
     with caplog.at_level("WARNING", logger="gyronet.training.runs"):
         _, folds = fit_by_run(TempPolynomial(3), data, progress=False)
     warned = [r.getMessage() for r in caplog.records if "extrapolation" in r.getMessage()]
     assert len(warned) == 1 and warned[0].startswith("run chamber spends")
-    assert folds[0]["in_box_s"] < 3600.0 <= folds[1]["in_box_s"]
+    assert folds[0]["in_box_s"] < 3600.0 <= folds[1]["in_box_s"] and folds[2]["in_box_s"] < 3600.0
 
 
 def test_the_held_out_run_can_be_scored_as_deployed_with_a_startup_offset(paper_csv, cycle_csv):
