@@ -12,7 +12,8 @@ import numpy as np
 import pytest
 
 from gyronet.analysis.diagnose import screen
-from gyronet.analysis.diagnose.advice import advice_lines, orientation_label, record_advice, runs_advice
+from gyronet.analysis.diagnose.advice import (advice_lines, alternatives_advice, orientation_label, record_advice,
+                                             runs_advice)
 from gyronet.analysis.diagnose.choose import complexity, tie_groups
 from gyronet.analysis.diagnose.runlevel import RunCandidate, dealt_labels, run_candidates, screen_runs
 from gyronet.model.rbf import RBFNet
@@ -141,6 +142,10 @@ def test_every_report_ends_with_what_to_record_next():
     # a record that shows everything still gets one item
     lines = advice_lines([])
     assert lines[0] == "## What to record next" and any("another run" in line for line in lines)
+    # ties first only where an item decides one; else the order is the cost alone, and the report says so
+    assert advice_lines(items)[2].startswith("Cheapest first. **Next: ")
+    tie = alternatives_advice([{"kind": "lag", "source": "temp_c", "alternatives": [{"kind": "time", "source": "t"}]}])
+    assert advice_lines(items + tie)[2].startswith("What would decide between equivalent explanations first")
 
 
 # ------------------------------------------------------------------------------ simulated campaigns

@@ -177,7 +177,9 @@ def advice_lines(items: Sequence[Advice]) -> list[str]:
     items = sorted(items, key=lambda a: (not a.decides, COST_H[a.cost])) or [
         Advice("run", "whether the model transfers to a run it was not trained on",
                "another run of the same unit, kept out of training and checked with compensate.py")]
+    order = ("What would decide between equivalent explanations first, then cheapest first." if items[0].decides
+             else "Cheapest first.")
     lines = ["## What to record next", "",
-             f"What would decide between equivalent explanations first, then cheapest first. **Next: {items[0].record}** (it would show {items[0].cannot_show.split(':')[0]}).", ""]
+             f"{order} **Next: {items[0].record}** (it would show {items[0].cannot_show.split(':')[0]}).", ""]
     lines += [f"- Cannot show {a.cannot_show}. Record: {a.record}." for a in items]
     return lines + [""]
