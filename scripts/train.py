@@ -1,8 +1,10 @@
 """Train a drift compensator: python scripts/train.py data.path=F.csv [model=rbf|poly3|lsq] [-m hydra/sweeper=ga]."""
+import logging
 import sys
 from pathlib import Path
 
 from hydra.core.hydra_config import HydraConfig
+from hydra.types import RunMode
 from hydra.utils import instantiate
 from omegaconf import DictConfig, OmegaConf
 
@@ -12,6 +14,8 @@ from gyronet.figures.tb import make_writer
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # scripts/_cli.py, also when this file is run by path
 from _cli import command  # noqa: E402
+
+log = logging.getLogger(__name__)
 
 
 # a bad input is one line and exit 2; in a sweep it raises, and the sweeper scores the job inf
@@ -32,6 +36,9 @@ def main(cfg: DictConfig) -> float:
                                      "lr": cfg.optim.get("lr", 0.0), "seed": cfg.seed})
     finally:
         writer.close()
+    if HydraConfig.get().mode != RunMode.MULTIRUN:  # a newcomer's next step
+        log.info("next: python scripts/compensate.py model=%s input=F.csv output=G.csv (docs/reference/commands.md)",
+                 Path(HydraConfig.get().runtime.output_dir) / "compensator")
     return metrics["val/rmse_dps"]
 
 

@@ -49,6 +49,8 @@ def test_train_script_writes_bundle_report_and_tensorboard(tmp_path, paper_csv, 
     thinnest = report["metrics"]["data/min_s_per_degc"]
     assert 50 < thinnest < 100 and f"record: {thinnest:.0f} s per degC at the least" in console[0]
     assert "a second cycle helps" in console[0]
+    assert console[0].rstrip().endswith(f"next: python scripts/compensate.py model={tmp_path / 'compensator'} "
+                                        "input=F.csv output=G.csv (docs/reference/commands.md)")
     assert {"model.pt", "meta.json"} <= {p.name for p in (tmp_path / "compensator").iterdir()}
     meta = json.loads((tmp_path / "compensator" / "meta.json").read_text())
     # the paper's inputs, then those of any axis lag the screen kept (gyronet.training.axis_lag)
