@@ -37,6 +37,7 @@ log = logging.getLogger(__name__)
 
 _MARKER_SPEED = termios.B50
 _POLL_S = 0.01
+_QUIET_POLLS = 10  # drain: this many polls in a row find nothing unread
 
 
 class PtySensor:
@@ -100,16 +101,19 @@ class PtySensor:
         """Wait until the reader has read everything sent.
 
         The kernel moves written bytes to the slave's queue asynchronously, so an empty queue right
-        after a write proves nothing: it must stay empty for ``quiet_s``.
+        after a write proves nothing: it must stay empty for ``quiet_s``, seen so by consecutive polls
+        (a poll late by more than ``quiet_s``, this thread starved on a loaded machine, is not a quiet window).
         """
         deadline = time.monotonic() + timeout_s
-        quiet_since = time.monotonic()
-        while time.monotonic() - quiet_since < quiet_s:
+        quiet_since, empty_polls = time.monotonic(), 0
+        while empty_polls < _QUIET_POLLS or time.monotonic() - quiet_since < quiet_s:
             if self.unread_bytes() > 0:
-                quiet_since = time.monotonic()
+                quiet_since, empty_polls = time.monotonic(), 0
                 if quiet_since > deadline:
                     log.warning("reader left %d bytes unread on %s", self.unread_bytes(), self.path)
                     return False
+            else:
+                empty_polls += 1
             time.sleep(_POLL_S)
         return True
 
