@@ -236,6 +236,15 @@ def test_model_from_another_bundle_is_refused(bundle, tmp_path):
         Compensator.load(mixed)
 
 
+def test_a_run_folder_given_as_the_bundle_names_its_bundle(bundle, tmp_path):
+    """model=outputs/train/RUN (the run's folder, not its compensator/) is the commonest slip."""
+    run = bundle.parent  # the folder train.py wrote, holding compensator/
+    with pytest.raises(BundleError, match=f"not a compensator bundle \\(no model.pt\\); did you mean {bundle}\\?"):
+        Compensator.load(run)
+    with pytest.raises(BundleError, match=r"\(no model.pt\)$"):
+        Compensator.load(tmp_path)
+
+
 def test_new_bundle_records_checksums(bundle):
     meta = json.loads((bundle / "meta.json").read_text())
     assert meta["sha256"] == {"model.pt": sha256_file(bundle / "model.pt")}

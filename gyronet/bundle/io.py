@@ -107,7 +107,10 @@ def read_bundle(bundle_dir: str | Path) -> LoadedBundle:
         raise BundleError(f"{bundle_dir}: not a compensator bundle (no such folder)")
     for name in (MODEL_FILE, META_FILE):
         if not (bundle_dir / name).is_file():
-            raise BundleError(f"{bundle_dir}: not a compensator bundle (no {name})")
+            inner = next((d for d in (bundle_dir / "compensator", bundle_dir / "best" / "compensator")
+                          if (d / META_FILE).is_file()), None)  # a run's or a sweep's folder, not its bundle
+            raise BundleError(f"{bundle_dir}: not a compensator bundle (no {name})"
+                              + (f"; did you mean {inner}?" if inner is not None else ""))
     meta_path, model_path, kalman_path = (bundle_dir / n for n in (META_FILE, MODEL_FILE, KALMAN_FILE))
     meta = _read_json(meta_path)
     if meta.get("format") != BUNDLE_FORMAT or isinstance(meta.get("format"), bool):
