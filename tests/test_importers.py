@@ -448,6 +448,26 @@ def test_commands_point_a_semicolon_file_to_convert(tmp_path):
     assert "cells are separated by ';', not ','; convert it first: python scripts/convert.py" in text
 
 
+@pytest.mark.parametrize("tool", ["psim", "lpms", "upper case"])
+def test_another_tool_s_log_given_as_a_recording_says_how_to_read_it(tmp_path, tool):
+    """train.py data.path=<a raw psim or LPMS log> said only which columns were missing."""
+    if tool == "psim":
+        src, hint = write_psim(tmp_path / "log.csv", ["0, 1, 2, 3, 4, 5, 6, 20"]), "format=psim"
+    elif tool == "lpms":
+        src, hint = write_lpms(tmp_path / "log.csv", LPMS_LATER, lpms_rows()), "format=lpms"
+    else:
+        src = tmp_path / "log.csv"
+        src.write_text("Time_s,Temp_C,gyro_x_dps,gyro_y_dps,gyro_z_dps\n0,20,0,0,0\n1,20,0,0,0\n")
+        hint = "names are lower case: time_s, temp_c"
+    with pytest.raises(RecordingError) as excinfo:
+        load_recording(src)
+    text = one_line_error(excinfo)
+    assert text.startswith(f"{src}: missing required column(s)") and text.endswith(hint)
+    if tool != "upper case":
+        assert f"python scripts/convert.py input={src} output=F.csv {hint}" in text
+        assert detect_format(src) == tool
+
+
 def test_script_converts_a_semicolon_decimal_comma_file(tmp_path):
     src = tmp_path / "excel.csv"
     src.write_bytes(DIALECTS["decimal_comma"])

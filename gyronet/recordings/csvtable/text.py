@@ -153,9 +153,23 @@ def check_header(path: Path, names: list[str], required: Sequence[str], delimite
     present = set(names)
     missing = [c for c in required if c not in present]
     if missing:
+        tool = other_tool(names)
+        lower = [c for c in missing if c in {n.strip().lower() for n in names}]
+        hint = (f"; it looks like a {tool} log: python scripts/convert.py input={path} output=F.csv format={tool}"
+                if tool else f"; names are lower case: {', '.join(lower)}" if lower else "")
         raise RecordingError(f"{path}: missing required column(s) {', '.join(missing)}"
-                             f" (header has {show(', '.join(names), 120)})")
+                             f" (header has {show(', '.join(names), 120)}){hint}")
     return trailing
+
+
+def other_tool(names: Sequence[str]) -> str | None:
+    """The importer (``psim``, ``lpms``) whose log has this header, or None."""
+    low = {n.strip().lower().replace(" ", "") for n in names}
+    if "time(ms)" in low and any(n.startswith("gyrox") for n in low):
+        return "psim"
+    if any(n.startswith("timestamp") for n in low) and any(n.startswith(("gyrox", "gyrx")) for n in low):
+        return "lpms"
+    return None
 
 
 def sniff(raw: bytes) -> tuple[str, str]:

@@ -25,7 +25,7 @@ from typing import Callable, Mapping
 
 from gyronet.recordings.data import Recording, write_recording
 from gyronet.errors import GyronetError, RecordingError
-from gyronet.recordings.csvtable import sniff
+from gyronet.recordings.csvtable import other_tool, sniff
 from gyronet.recordings.importers._common import read_header_line, read_text
 from gyronet.recordings.importers.contract import import_contract
 from gyronet.recordings.importers.lpms import import_lpms
@@ -67,12 +67,11 @@ def detect_format(path: str | os.PathLike) -> str:
     text = read_text(path)
     _, header = read_header_line(path, text)
     delimiter, _ = sniff(text)
-    names = {n.strip().lower().replace(" ", "") for n in header.split(delimiter)}
-    if "time(ms)" in names and any(n.startswith("gyrox") for n in names):
-        return "psim"
-    if any(n.startswith("timestamp") for n in names) and any(n.startswith(("gyrox", "gyrx")) for n in names):
-        return "lpms"
-    if "time_s" in names:
+    names = header.split(delimiter)
+    tool = other_tool(names)
+    if tool is not None:
+        return tool
+    if "time_s" in {n.strip().lower() for n in names}:
         return "csv"
     raise RecordingError(f"{path}: cannot tell the format from the header ({header[:80]!r}); "
                          f"pass format={'|'.join(FORMATS)} (csv: the columns of docs/reference/recording-format.md, any of ',', ';' "
