@@ -213,6 +213,22 @@ def test_a_campaign_too_short_for_the_test_says_no_effect_can_be_shown(tmp_path)
         assert says in (tmp_path / "report.md").read_text()
 
 
+def test_a_report_names_an_effect_s_parameters_in_words(tmp_path):
+    """report.md printed Python dicts: "`run_offset` of `run` {'n_free': 0}"."""
+    from gyronet.analysis.diagnose.runs_report import write_runs_report
+
+    rmse = {"val_rmse_dps": {"x": 0.01, "y": 0.01, "z": 0.01}}
+    effect = {"kind": "run_offset", "source": "run", "params": {"n_free": 0}, "axes": ["x"], "evidence": "E.",
+              "alternatives": [{"kind": "column", "source": "acc_y_g", "params": {"tau_s": 0.0}, "score": 1.39},
+                               {"kind": "column", "source": "depth_m", "params": {"tau_s": 389.0}, "score": 1.38}]}
+    details = {"runs": [{"name": "a", "orientation": "z_down"}, {"name": "b", "orientation": "y_down"}],
+               "options": {"alpha": 0.01}, "rounds": []}
+    write_runs_report(tmp_path, {"baseline": rmse, "final": rmse, "effects": [effect]}, details, ["z_down", "y_down"], [])
+    report = (tmp_path / "report.md").read_text()
+    assert "### 1. `run_offset` of `run`, axes x" in report and "{" not in report
+    assert "`column` of `acc_y_g` (score 1.39); `column` of `depth_m` (tau_s 389) (score 1.38)" in report
+
+
 def test_a_campaign_report_shows_its_figures(tmp_path):
     """diagnose.md promises the residual before and after as figures; a campaign wrote none."""
     from gyronet.analysis.diagnose import diagnose

@@ -104,12 +104,19 @@ def _rmse_row(label: str, values: Mapping[str, float]) -> str:
     return f"| {label} | " + " | ".join(f"{values[a]:.4g}" for a in AXES) + " |"
 
 
+def params_text(params: Mapping[str, Any]) -> str:
+    """An effect's parameters for a reader (`` (tau_s 389)``), or nothing; a zero lag or free count says nothing."""
+    shown = [f"{k} {v:g}" if isinstance(v, float) else f"{k} {v}" for k, v in params.items() if v not in (0, 0.0, None)]
+    return f" ({', '.join(shown)})" if shown else ""
+
+
 def alternatives_lines(effect: Mapping[str, Any]) -> list[str]:
     """The sentence that names an effect's equivalent explanations, if it has any."""
     alternatives = effect.get("alternatives") or []
     if not alternatives:
         return []
-    names = "; ".join(f"`{a['kind']}` of `{a['source']}` {a['params']} (score {a['score']:.3g})" for a in alternatives)
+    names = "; ".join(f"`{a['kind']}` of `{a['source']}`{params_text(a['params'])} (score {a['score']:.3g})"
+                      for a in alternatives)
     return [f"Equally good within the screen's own noise: {names}. This record cannot tell them apart; the "
             f"effect kept is the first of them that the retrained network confirmed, tried simplest first and, "
             f"of equal freedom, in this order: a recording column as it is or the clock's own shapes, then a "
@@ -147,7 +154,7 @@ def write_report(out_dir: Path, diagnosis: Mapping[str, Any], details: Mapping[s
                   + ", ".join(f"`{n}`" for n in close) + " score within 10 % of each other: this record cannot "
                   "tell these explanations apart.", ""]
     for k, effect in enumerate(diagnosis["effects"], start=1):
-        lines += [f"### {k}. `{effect['kind']}` of `{effect['source']}` {effect['params']}, axes "
+        lines += [f"### {k}. `{effect['kind']}` of `{effect['source']}`{params_text(effect['params'])}, axes "
                   f"{', '.join(effect['axes'])}", "", effect["evidence"], "",
                   "| network's held-out 60 s residual | " + " | ".join(AXES) + " |", "| --- | --- | --- | --- |",
                   _rmse_row("before", effect["val_rmse_before_dps"]),

@@ -7,7 +7,7 @@ from typing import Any, Mapping, Sequence
 from gyronet.atomic import write_text
 from gyronet.recordings.data import AXES
 from gyronet.analysis.diagnose.advice import advice_lines
-from gyronet.analysis.diagnose.report import alternatives_lines
+from gyronet.analysis.diagnose.report import alternatives_lines, params_text
 
 
 def write_runs_report(out_dir: Path, diagnosis: Mapping[str, Any], details: Mapping[str, Any],
@@ -36,7 +36,7 @@ def write_runs_report(out_dir: Path, diagnosis: Mapping[str, Any], details: Mapp
                   "runs change within themselves, and nothing within the runs passes the test. The final bundle "
                   "is the baseline.", ""]
     for k, effect in enumerate(diagnosis["effects"], start=1):
-        lines += [f"### {k}. `{effect['kind']}` of `{effect['source']}` {effect['params']}, axes "
+        lines += [f"### {k}. `{effect['kind']}` of `{effect['source']}`{params_text(effect['params'])}, axes "
                   f"{', '.join(effect['axes'])}", "", effect["evidence"], ""]
         lines += alternatives_lines(effect)
         if effect["kind"] == "run_offset" and effect["alternatives"]:
