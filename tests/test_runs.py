@@ -178,7 +178,7 @@ def test_a_start_one_fold_cannot_make_is_left_out_of_every_fold(paper_csv, cycle
 
 
 def test_with_no_axis_keeping_its_gaussians_the_final_fit_is_least_squares_at_the_levels(
-        paper_csv, cycle_csv, monkeypatch):
+        paper_csv, cycle_csv, monkeypatch, caplog):
     """Levels below the Gaussians are refitted in closed form, so the final fits take one step, not the folds' count,
     and the bundle is the least-squares fit at those levels (with the run offsets) whatever the training did."""
     from gyronet.training import capacity, run_starts
@@ -195,8 +195,10 @@ def test_with_no_axis_keeping_its_gaussians_the_final_fit_is_least_squares_at_th
     data = training_data(paths=[str(paper_csv), str(cycle_csv)], run_offsets=True)
     model = RBFNet(3, 3, 6, rbf_inputs=[0], linear=True, temp_degree=3, clamp=True, validate_init=True,
                    kmeans_members=2, select_capacity=True)
-    metrics, _ = fit_by_run(model, data, max_epochs=120, progress=False)
+    with caplog.at_level("INFO", logger="gyronet.training.runs"):
+        metrics, _ = fit_by_run(model, data, max_epochs=120, progress=False)
     assert steps and set(steps) == {1}
+    assert "final fit on every run by least squares" in caplog.text  # not "for 1/1 steps"
     assert [metrics[f"model/level_{a}"] for a in "xyz"] == [0, 1, 2]
     x, y = torch.as_tensor(data.train.x), torch.as_tensor(data.train.y)
     fresh, offsets = copy.deepcopy(model), RunOffsets(data.train.run, 2)

@@ -221,9 +221,11 @@ def fit_by_run(model: nn.Module, data: RunsData, optim: Callable | None = None, 
         "cross_within_1_sigma_by_run": dict(zip((r.name for r in data.runs), by_run))}),
         parts if parts and len(parts) > 1 else None)
     out.update({f"val/cross_within_1_sigma_{a}": v for a, v in zip(AXES, pooled)})
-    counted = "/".join(str(n) for n in steps if n is not None)
+    counted = [n for n in steps if n is not None]
+    how = (" by least squares" if counted and max(counted) <= 1  # no Gaussians kept: one step, the refit
+           else f" for {'/'.join(map(str, counted))} steps" if counted else "")
     log.info("leave-one-run-out over %d runs: mean held-out 60 s RMSE %.4g deg/s; final fit on every run%s",
-             data.n_runs, out["val/rmse_dps"], f" for {counted} steps" if counted else "")
+             data.n_runs, out["val/rmse_dps"], how)
     return out, folds
 
 
