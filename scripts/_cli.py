@@ -133,7 +133,7 @@ def _guard(task: Task, schemas: Mapping[str, Any], required: Sequence[str]) -> T
     def guarded(cfg: DictConfig) -> Any:
         try:
             check_settings(cfg, schemas, required)
-            if "input" in cfg and "output" in cfg and not any(OmegaConf.is_missing(cfg, k) for k in ("input", "output")):
+            if all(k in cfg and not OmegaConf.is_missing(cfg, k) for k in ("input", "output")):
                 refuse_overwriting(str(cfg.input), str(cfg.output))  # compensate, convert, allan, ...
             return task(cfg)
         except Exception as err:

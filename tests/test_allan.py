@@ -10,8 +10,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from gyronet.allan import (allan_report, continuous_segments, format_table, log_taus, noise_parameters, oadev, plot_allan,
-                           report_to_json)
+from gyronet.allan import (allan_report, continuous_segments, format_table, log_taus, noise_parameters, oadev,
+                           plot_allan, report_to_json)
 from gyronet.recordings.data import write_recording
 from gyronet.errors import GyronetError
 

@@ -223,7 +223,8 @@ def test_a_report_names_an_effect_s_parameters_in_words(tmp_path):
                                {"kind": "column", "source": "depth_m", "params": {"tau_s": 389.0}, "score": 1.38}]}
     details = {"runs": [{"name": "a", "orientation": "z_down"}, {"name": "b", "orientation": "y_down"}],
                "options": {"alpha": 0.01}, "rounds": []}
-    write_runs_report(tmp_path, {"baseline": rmse, "final": rmse, "effects": [effect]}, details, ["z_down", "y_down"], [])
+    diagnosis = {"baseline": rmse, "final": rmse, "effects": [effect]}
+    write_runs_report(tmp_path, diagnosis, details, ["z_down", "y_down"], [])
     report = (tmp_path / "report.md").read_text()
     assert "### 1. `run_offset` of `run`, axes x" in report and "{" not in report
     assert "`column` of `acc_y_g` (score 1.39); `column` of `depth_m` (tau_s 389) (score 1.38)" in report
@@ -240,8 +241,8 @@ def test_a_campaign_report_shows_its_figures(tmp_path):
         paths.append(str(tmp_path / f"run{i}.csv"))
         write_simulation(sim, paths[-1])
     model = lambda n: RBFNet(n, 3, 6, rbf_inputs=[0], linear=True, temp_degree=3, clamp=True)  # noqa: E731
-    diagnose({"paths": paths, "rate_tau_s": 5.0}, model, tmp_path / "out", train_cfg={"progress": False, "max_epochs": 60},
-             options={"n_shifts": 19, "max_effects": 1})
+    diagnose({"paths": paths, "rate_tau_s": 5.0}, model, tmp_path / "out",
+             train_cfg={"progress": False, "max_epochs": 60}, options={"n_shifts": 19, "max_effects": 1})
     report = (tmp_path / "out" / "report.md").read_text()
     assert "## Figures" in report
     for name in ("residual_by_run.png", "residual_vs_temperature.png"):

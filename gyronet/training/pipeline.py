@@ -23,11 +23,12 @@ from gyronet.training.train import evaluate, fit
 
 log = logging.getLogger(__name__)
 
-# what one training of the default on one recording is worth: how far the shipped mixture (not the fits it mixes)
-# moved with the seed on another history, docs/results/default-model.md
+# how far to trust an error bar calibrated within one recording (the survey filters exactly this warning)
 ONE_RECORDING_BAR_NOTE = ("error bar: calibrated on held-out time blocks of this one recording; on a real sensor's "
                           "next run the error was 3-15x the bar (docs/results/error-bars.md). Train on two or more "
                           "runs (data.paths) for a bar checked on a run it was not calibrated on")
+# what one training of the default on one recording is worth: how far the shipped mixture (not the fits it mixes)
+# moved with the seed on another history, docs/results/default-model.md
 SEED_NOTE = ("; the bundle is their mixture, whose residual on another history moved with the seed by at most 5 % "
              "on 46 of 48 simulated sensors (5.6 % at most), by 9-10 % on 3 of 10 picked for a sharp bend where they "
              "power up (docs/results/default-model.md)")

@@ -173,7 +173,7 @@ class _RecordingFile:
             self._fd = os.open(self.path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
         except OSError as err:
             raise OutputError(f"{self.path}: cannot write the recording ({err.strerror})") from None
-        head = b""
+        head, self._fs_at = b"", None
         for key, value in meta.items():
             if key == "fs_hz":
                 self._fs_at, value = len(head) + len(b"# fs_hz="), f"{value:<{FS_SLOT}}"  # read back stripped

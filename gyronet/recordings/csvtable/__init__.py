@@ -7,5 +7,5 @@ from gyronet.recordings.csvtable.table import NA_TOKENS, Table, parse_table
 from gyronet.recordings.csvtable.text import (MAX_COLUMNS, MAX_NAME_CHARS, check_header, other_tool, read_preamble,
                                               read_source, show, sniff, split_header, to_utf8)
 
-__all__ = ["MAX_COLUMNS", "MAX_NAME_CHARS", "NA_TOKENS", "Table", "check_header", "other_tool", "parse_table", "read_preamble",
-           "read_source", "show", "sniff", "split_header", "to_utf8"]
+__all__ = ["MAX_COLUMNS", "MAX_NAME_CHARS", "NA_TOKENS", "Table", "check_header", "other_tool", "parse_table",
+           "read_preamble", "read_source", "show", "sniff", "split_header", "to_utf8"]
