@@ -77,6 +77,42 @@ def bundle(tmp_path_factory, paper_csv) -> Path:
     return out / "compensator"
 
 
+LPBUS_SAMPLES = 300  # the LP-BUS pty tests' short recording (test_lpbus_live, test_lpbus_replug)
+OUT_OF_RANGE_TEMP_C = 150.0  # a temperature no test bundle is trained at
+
+
+@pytest.fixture
+def lpbus_recording(paper_csv, tmp_path) -> Path:
+    """The paper run's first ``LPBUS_SAMPLES`` samples as a recording: what the emulated LP-BUS sensor plays."""
+    from gyronet.recordings.data import load_recording, write_recording
+
+    recording = load_recording(paper_csv).slice(slice(0, LPBUS_SAMPLES))
+    return write_recording(tmp_path / "short.csv", recording.columns, recording.meta)
+
+
+def lpbus_bytes(columns: dict, faults) -> bytes:
+    """The bytes an emulated LP-BUS sensor sends for ``columns`` with ``faults`` (a ``FaultPlan``), drops left out."""
+    from gyronet.deploy.stream import plan_stream
+
+    plan = plan_stream(columns, "lpbus", faults)
+    return plan.preamble + b"".join(event.data for event in plan.events if not event.drop)
+
+
+@pytest.fixture(scope="module")
+def flood(paper_csv) -> tuple[dict, bytes]:
+    """2,000 samples with a replugged sensor (its clock starts again) after 1,200, as LP-BUS bytes with
+    garbage, corrupt, cut and NaN frames and out-of-range temperatures."""
+    from gyronet.deploy.stream import FaultPlan, plan_stream
+    from gyronet.recordings.data import load_recording
+
+    recording = load_recording(paper_csv).slice(slice(0, 2000))
+    columns = {c: v.copy() for c, v in recording.columns.items()}
+    columns["time_s"][1200:] = columns["time_s"][1200:] - columns["time_s"][1200] + 0.5
+    faults = FaultPlan(garbage_rate=0.03, corrupt_rate=0.02, truncate_rate=0.02, nan_rate=0.01, out_of_range_every=41,
+                       out_of_range_temp_c=OUT_OF_RANGE_TEMP_C, seed=4)
+    return plan_stream(columns, "lpbus", faults).log, lpbus_bytes(columns, faults)
+
+
 def toy_kalman_dict() -> dict:
     """A 2 Hz Kalman stage with a known AR(1) drift model, for tests that need one without identifying it."""
     from gyronet.model.kalman import AxisModel, KalmanModel, KalmanStage

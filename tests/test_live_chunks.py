@@ -12,17 +12,9 @@ import pytest
 from gyronet.bundle.compensator import Compensator
 from gyronet.recordings.data import GYRO_COLUMNS, Recording, load_recording
 from gyronet.bundle.offline import compensate_recording
-from gyronet.deploy.stream import FaultPlan, LpBusParser, Sample, lpbus_frame, plan_stream
+from gyronet.deploy.stream import FaultPlan, LpBusParser, Sample, lpbus_frame
 from gyronet.deploy.stream.events import as_samples
-
-OUT_OF_RANGE_TEMP_C = 150.0
-
-
-def lpbus_bytes(columns: dict, faults: FaultPlan) -> bytes:
-    """The bytes an emulated LP-BUS sensor sends for ``columns`` with ``faults``, drops left out."""
-    plan = plan_stream(columns, "lpbus", faults)
-    return plan.preamble + b"".join(event.data for event in plan.events if not event.drop)
-
+from conftest import lpbus_bytes
 
 def reads_of(data: bytes, seed: int, max_bytes: int = 6000) -> list[bytes]:
     """``data`` cut at random into reads of 1 to ``max_bytes`` bytes: chunks of many frames, cut frames."""
@@ -83,18 +75,6 @@ def assert_same_rows(a: pd.DataFrame, b: pd.DataFrame) -> None:
     exact = [c for c in a.columns if c not in GYRO_COLUMNS]
     pd.testing.assert_frame_equal(a[exact], b[exact])
     np.testing.assert_allclose(a[list(GYRO_COLUMNS)].to_numpy(), b[list(GYRO_COLUMNS)].to_numpy(), rtol=0, atol=1e-9)
-
-
-@pytest.fixture(scope="module")
-def flood(paper_csv) -> tuple[dict, bytes]:
-    """2,000 samples with a replugged sensor (its clock starts again) after 1,200, as LP-BUS bytes with
-    garbage, corrupt, cut and NaN frames and out-of-range temperatures."""
-    recording = load_recording(paper_csv).slice(slice(0, 2000))
-    columns = {c: v.copy() for c, v in recording.columns.items()}
-    columns["time_s"][1200:] = columns["time_s"][1200:] - columns["time_s"][1200] + 0.5
-    faults = FaultPlan(garbage_rate=0.03, corrupt_rate=0.02, truncate_rate=0.02, nan_rate=0.01, out_of_range_every=41,
-                       out_of_range_temp_c=OUT_OF_RANGE_TEMP_C, seed=4)
-    return plan_stream(columns, "lpbus", faults).log, lpbus_bytes(columns, faults)
 
 
 def test_chunked_equals_per_sample_and_offline_with_faults_and_a_restart_inside_chunks(bundle, flood, tmp_path,

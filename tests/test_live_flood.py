@@ -14,8 +14,8 @@ from gyronet.recordings.data import GYRO_COLUMNS, load_recording
 from gyronet.deploy.stream import CsvLineParser, FaultPlan, plan_stream
 from gyronet.deploy.stream.csv_run import LineRun
 from gyronet.deploy.stream.lpbus_run import FrameRun
-from test_live_chunks import (OUT_OF_RANGE_TEMP_C, assert_same_rows, flood, offline_by_segment,  # noqa: F401
-                              reads_of, run)
+from conftest import OUT_OF_RANGE_TEMP_C
+from test_live_chunks import assert_same_rows, offline_by_segment, reads_of, run
 
 SUMMARY_KEYS = ("stopped", "n_samples", "faults", "n_faults", "n_out_of_range", "clock_restarts", "allan_bins")
 

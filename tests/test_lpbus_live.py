@@ -8,22 +8,16 @@ import pandas as pd
 import pytest
 
 from gyronet.bundle.compensator import Compensator
-from gyronet.recordings.data import GYRO_COLUMNS, load_recording, write_recording
+from gyronet.recordings.data import GYRO_COLUMNS, load_recording
 from gyronet.deploy.stream import FaultPlan
 from gyronet.deploy.stream.lpbus_device import EmulatedLpms
 from gyronet.deploy.stream.lpbus_probe import LayoutError
 from gyronet.deploy.stream.lpbus_setup import LpBusSetup
 from gyronet.deploy.stream.pty_device import fill_columns
 from gyronet.deploy.stream.pty_sensor import play_in_thread
+from conftest import LPBUS_SAMPLES as N_SAMPLES
 
-N_SAMPLES = 300
 FAST = {"backoff_s": 0.05, "max_backoff_s": 0.2, "give_up_s": 0.5}
-
-
-@pytest.fixture
-def short_recording(paper_csv, tmp_path):
-    recording = load_recording(paper_csv).slice(slice(0, N_SAMPLES))
-    return write_recording(tmp_path / "short.csv", recording.columns, recording.meta)
 
 
 def started(thread, link, timeout_s: float = 10.0):
@@ -50,10 +44,10 @@ def offline(bundle, columns, plan, layout):
 
 
 @pytest.mark.parametrize("model", ["LPMS-CU2", "LPMS-IG1-RS232"])
-def test_configured_sensor_streams_and_live_equals_offline(bundle, short_recording, tmp_path, model):
+def test_configured_sensor_streams_and_live_equals_offline(bundle, lpbus_recording, tmp_path, model):
     from gyronet.deploy.stream.live import run_stream
 
-    recording = load_recording(short_recording)
+    recording = load_recording(lpbus_recording)
     device = power_on(model)
     faults = FaultPlan(garbage_rate=0.03, corrupt_rate=0.03, truncate_rate=0.02, seed=4)
     link = tmp_path / "sensor"
@@ -84,11 +78,11 @@ def test_configured_sensor_streams_and_live_equals_offline(bundle, short_recordi
     assert float32_error_dps < 1e-6
 
 
-def test_rate_the_bundle_needs_is_refused_without_resample(bundle, short_recording, tmp_path):
+def test_rate_the_bundle_needs_is_refused_without_resample(bundle, lpbus_recording, tmp_path):
     from gyronet.deploy.stream.live import run_stream
     from gyronet.deploy.stream.lpbus_link import SensorError
 
-    recording = load_recording(short_recording)
+    recording = load_recording(lpbus_recording)
     link = tmp_path / "sensor"
     thread = started(play_in_thread(None, link, device=power_on("LPMS-CU2"), columns=recording.columns,
                                     command_wait_s=0.5), link)
@@ -98,10 +92,10 @@ def test_rate_the_bundle_needs_is_refused_without_resample(bundle, short_recordi
     assert not (tmp_path / "live.csv").exists()
 
 
-def test_passive_reader_of_an_ig1_with_the_legacy_layout_is_refused(bundle, short_recording, tmp_path):
+def test_passive_reader_of_an_ig1_with_the_legacy_layout_is_refused(bundle, lpbus_recording, tmp_path):
     from gyronet.deploy.stream.live import run_stream
 
-    recording = load_recording(short_recording)
+    recording = load_recording(lpbus_recording)
     device = EmulatedLpms(model="LPMS-IG1-RS232", fields=("acc", "gyro", "temperature"), rate_hz=10, precision=32)
     link = tmp_path / "sensor"
     started(play_in_thread(None, link, device=device, columns=recording.columns, command_wait_s=0.2),
@@ -112,14 +106,14 @@ def test_passive_reader_of_an_ig1_with_the_legacy_layout_is_refused(bundle, shor
     assert len(pd.read_csv(tmp_path / "live.csv", comment="#")) == 0
 
 
-def test_record_sets_the_sensor_up_and_writes_a_recording(short_recording, tmp_path, monkeypatch, caplog):
+def test_record_sets_the_sensor_up_and_writes_a_recording(lpbus_recording, tmp_path, monkeypatch, caplog):
     from gyronet.deploy.stream import record
     from gyronet.deploy.stream.record import record_stream
 
     monkeypatch.setattr(record, "PROGRESS_S", 0.0)  # a progress line every sample
     caplog.set_level("INFO", logger="gyronet.deploy.stream.record")
 
-    recording = load_recording(short_recording)
+    recording = load_recording(lpbus_recording)
     recording.columns["time_s"] = np.arange(N_SAMPLES) / 100.0  # played at the rate the sensor is set to
     device = power_on("LPMS-BE1")
     link = tmp_path / "sensor"
@@ -140,11 +134,11 @@ def test_record_sets_the_sensor_up_and_writes_a_recording(short_recording, tmp_p
         np.testing.assert_array_equal(saved.columns[column], [row[column] for row in rows])
 
 
-def test_record_writes_the_rate_the_stamps_show_when_the_sensor_reports_another(short_recording, tmp_path, caplog):
+def test_record_writes_the_rate_the_stamps_show_when_the_sensor_reports_another(lpbus_recording, tmp_path, caplog):
     """An emulator set to 100 Hz playing a file stamped 50 Hz apart: the reported rate made a file no loader took."""
     from gyronet.deploy.stream.record import record_stream
 
-    recording = load_recording(short_recording)
+    recording = load_recording(lpbus_recording)
     recording.columns["time_s"] = np.arange(N_SAMPLES) / 50.0
     link = tmp_path / "sensor"
     thread = started(play_in_thread(None, link, device=power_on("LPMS-CU2"), columns=recording.columns), link)
@@ -159,7 +153,7 @@ def test_record_writes_the_rate_the_stamps_show_when_the_sensor_reports_another(
 
 
 @pytest.mark.slow
-def test_scripts_configure_an_emulated_ig1_and_refuse_a_silent_port_in_one_line(bundle, short_recording, tmp_path):
+def test_scripts_configure_an_emulated_ig1_and_refuse_a_silent_port_in_one_line(bundle, lpbus_recording, tmp_path):
     """emulate_sensor.py sensor.model=... -> pty -> stream.py lpbus.configure=true; record.py on a mute port."""
     import subprocess
     import sys
@@ -167,7 +161,7 @@ def test_scripts_configure_an_emulated_ig1_and_refuse_a_silent_port_in_one_line(
 
     root = Path(__file__).resolve().parents[1]
     link = tmp_path / "sensor"
-    emulator = subprocess.Popen([sys.executable, "scripts/emulate_sensor.py", f"input={short_recording}", "speed=0",
+    emulator = subprocess.Popen([sys.executable, "scripts/emulate_sensor.py", f"input={lpbus_recording}", "speed=0",
                                  "sensor.model=LPMS-IG1-RS232", f"link={link}", f"log_file={tmp_path / 'emu.json'}",
                                  f"hydra.run.dir={tmp_path / 'emu'}"], cwd=root, stdout=subprocess.DEVNULL,
                                 stderr=subprocess.STDOUT)

@@ -12,7 +12,8 @@ from gyronet.deploy.stream.lpbus_link import SensorError
 from gyronet.deploy.stream.lpbus_probe import LayoutError
 from gyronet.deploy.stream.lpbus_setup import LpBusSetup
 from gyronet.deploy.stream.pty_sensor import play_in_thread
-from test_lpbus_live import FAST, N_SAMPLES, offline, power_on, short_recording, started  # noqa: F401 (fixture)
+from conftest import LPBUS_SAMPLES as N_SAMPLES
+from test_lpbus_live import FAST, offline, power_on, started
 
 SPLIT = N_SAMPLES // 2
 
@@ -33,9 +34,9 @@ def run_live(bundle, link, tmp_path, lpbus, **options):
                       lpbus=lpbus, **options)
 
 
-def test_a_power_cycled_sensor_is_set_up_again_and_live_equals_offline_per_segment(bundle, short_recording,
+def test_a_power_cycled_sensor_is_set_up_again_and_live_equals_offline_per_segment(bundle, lpbus_recording,
                                                                                    tmp_path, caplog):
-    first, second = halves(short_recording)
+    first, second = halves(lpbus_recording)
     again = power_on("LPMS-CU2")  # back with its power-on outputs, 16-bit, auto-calibration on
     link = tmp_path / "sensor"
     thread = started(play_in_thread(None, link, device=power_on("LPMS-CU2"), columns=first,
@@ -57,8 +58,8 @@ def test_a_power_cycled_sensor_is_set_up_again_and_live_equals_offline_per_segme
         np.testing.assert_allclose(rows[list(GYRO_COLUMNS)].to_numpy(), out.rate_dps, rtol=0, atol=1e-9)
 
 
-def test_another_sensor_behind_the_reopened_port_ends_the_run_by_name(bundle, short_recording, tmp_path):
-    first, second = halves(short_recording)
+def test_another_sensor_behind_the_reopened_port_ends_the_run_by_name(bundle, lpbus_recording, tmp_path):
+    first, second = halves(lpbus_recording)
     link = tmp_path / "sensor"
     started(play_in_thread(None, link, device=power_on("LPMS-CU2"), columns=first,
                            replugs=[(power_on("LPMS-IG1-RS232"), second)]), link)
@@ -68,9 +69,9 @@ def test_another_sensor_behind_the_reopened_port_ends_the_run_by_name(bundle, sh
     assert len(pd.read_csv(tmp_path / "live.csv", comment="#")) == SPLIT  # what came before, kept whole
 
 
-def test_a_listening_run_checks_the_first_frames_again_after_a_reopen(bundle, short_recording, tmp_path):
+def test_a_listening_run_checks_the_first_frames_again_after_a_reopen(bundle, lpbus_recording, tmp_path):
     """Legacy gyro + acc + temperature, then an IG1 sending acc + gyro + temperature: the same frame length."""
-    first, second = halves(short_recording)
+    first, second = halves(lpbus_recording)
     legacy = EmulatedLpms(model="LPMS-CU2", fields=("gyro", "acc", "temperature"), precision=32, rate_hz=100)
     ig1 = EmulatedLpms(model="LPMS-IG1-RS232", fields=("acc", "gyro", "temperature"), precision=32, rate_hz=100)
     link = tmp_path / "sensor"
@@ -82,10 +83,10 @@ def test_a_listening_run_checks_the_first_frames_again_after_a_reopen(bundle, sh
     assert len(pd.read_csv(tmp_path / "live.csv", comment="#")) == SPLIT
 
 
-def test_record_sets_a_power_cycled_sensor_up_again(short_recording, tmp_path):
+def test_record_sets_a_power_cycled_sensor_up_again(lpbus_recording, tmp_path):
     from gyronet.deploy.stream.record import record_stream
 
-    first, second = halves(short_recording)
+    first, second = halves(lpbus_recording)
     for columns in (first, second):
         columns["time_s"] = np.arange(len(columns["time_s"])) / 100.0  # played at the rate the sensor is set to
     again = power_on("LPMS-BE1")
@@ -105,11 +106,11 @@ def test_record_sets_a_power_cycled_sensor_up_again(short_recording, tmp_path):
     assert np.all(np.diff(saved.columns["time_s"]) > 0)
 
 
-def test_a_link_drop_without_a_power_cycle_is_set_up_again_with_nothing_to_change(bundle, short_recording, tmp_path,
+def test_a_link_drop_without_a_power_cycle_is_set_up_again_with_nothing_to_change(bundle, lpbus_recording, tmp_path,
                                                                                     caplog):
     from gyronet.deploy.stream import FaultPlan
 
-    recording = load_recording(short_recording)
+    recording = load_recording(lpbus_recording)
     device = power_on("LPMS-CU2")
     link = tmp_path / "sensor"
     thread = started(play_in_thread(None, link, device=device, columns=recording.columns,
@@ -122,12 +123,12 @@ def test_a_link_drop_without_a_power_cycle_is_set_up_again_with_nothing_to_chang
     assert device.commands.count(6) == 2 and device.commands[-1] == 7
 
 
-def test_record_refuses_another_sensor_after_a_replug_and_still_writes_its_summary(short_recording, tmp_path):
+def test_record_refuses_another_sensor_after_a_replug_and_still_writes_its_summary(lpbus_recording, tmp_path):
     import json
 
     from gyronet.deploy.stream.record import record_stream
 
-    first, second = halves(short_recording)
+    first, second = halves(lpbus_recording)
     for columns in (first, second):
         columns["time_s"] = np.arange(len(columns["time_s"])) / 100.0
     link = tmp_path / "sensor"
