@@ -82,9 +82,14 @@ def write_text(path: str | os.PathLike, text: str) -> None:
 
 
 def write_json(path: str | os.PathLike, value: Any, indent: int = 2) -> None:
-    """``value`` as strict JSON (:func:`jsonable`), written whole or not at all: any reader takes it, jq and
-    JavaScript too, where a bare ``NaN`` is an error."""
-    write_text(path, json.dumps(jsonable(value), indent=indent, allow_nan=False) + "\n")
+    """``value`` as :func:`json_text`, written whole or not at all."""
+    write_text(path, json_text(value, indent))
+
+
+def json_text(value: Any, indent: int = 2) -> str:
+    """``value`` as strict JSON (:func:`jsonable`), ending in a newline: any reader takes it, jq and JavaScript
+    too, where a bare ``NaN`` is an error."""
+    return json.dumps(jsonable(value), indent=indent, allow_nan=False) + "\n"
 
 
 def jsonable(value: Any) -> Any:

@@ -12,8 +12,8 @@ from pathlib import Path
 import numpy as np
 from omegaconf import DictConfig, OmegaConf
 
-from gyronet.atomic import write_text
-from gyronet.allan import allan_report, format_table, plot_allan, report_to_json
+from gyronet.atomic import write_json
+from gyronet.allan import allan_report, format_table, plot_allan
 from gyronet.model import recalibration
 from gyronet.recordings.data import ALLAN_COLUMNS, load_recording
 from gyronet.errors import GyronetError
@@ -53,7 +53,7 @@ def main(cfg: DictConfig) -> None:
             (log.warning if verdict["recalibrate"] else log.info)(recalibration.summary_line(axis, verdict))
     output = Path(cfg.output)
     output.parent.mkdir(parents=True, exist_ok=True)
-    write_text(output, report_to_json(report))
+    write_json(output, report, indent=1)
     plot_allan(report, path=output.with_suffix(".png"), title=f"Allan deviation: {Path(cfg.input).name}")
     for line in format_table(report).splitlines():
         log.info(line)

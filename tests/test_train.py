@@ -12,7 +12,7 @@ from tensorboard.backend.event_processing.event_accumulator import EventAccumula
 from gyronet.bundle.compensator import Compensator
 from gyronet.recordings.data import load_recording, load_truth, write_recording
 from gyronet.training.dataset import block_rmse, static_rate_dps
-from gyronet.training.pipeline import evaluate_paths
+from gyronet.training.pipeline import evaluate_paths, load_held_out
 from gyronet.training.train import lr_at, residual_report
 
 from conftest import ROOT
@@ -114,7 +114,7 @@ def test_held_out_recordings_say_how_much_is_out_of_range_and_their_figures(bund
     n_outside = int(((recording.temp_c + 15.0 < low) | (recording.temp_c + 15.0 > high)).sum())
     assert 0 < n_outside < len(recording)
     with caplog.at_level(logging.INFO, logger="gyronet.training.pipeline"):
-        results = evaluate_paths(bundle, [str(hot), str(cycle_csv)], 60.0)
+        results = evaluate_paths(bundle, load_held_out([str(hot), str(cycle_csv)]), 60.0)
     lines = [r.getMessage() for r in caplog.records if r.name == "gyronet.training.pipeline"]
     warnings = [r.getMessage() for r in caplog.records if r.levelno == logging.WARNING]
     assert results[str(hot)]["n_out_of_range"] == n_outside

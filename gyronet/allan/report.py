@@ -1,7 +1,6 @@
 """``allan_report`` and what the commands write from it (JSON, a text table), apart from the maths."""
 from __future__ import annotations
 
-import json
 import logging
 import math
 from typing import Mapping, Sequence
@@ -10,7 +9,7 @@ import numpy as np
 
 from gyronet.allan.deviation import log_taus, oadev
 from gyronet.allan.noise import MIN_CLUSTERS, noise_parameters
-from gyronet.atomic import jsonable
+from gyronet.atomic import json_text
 from gyronet.errors import GyronetError
 from gyronet.recordings.data import GAP_FACTOR
 from gyronet.recordings.guard import GYRO_RANGE_DPS, bad_gyro
@@ -113,7 +112,7 @@ def allan_report(time_s: np.ndarray, rate_dps: np.ndarray, fs_hz: float | None =
 
 def report_to_json(report: Mapping) -> str:
     """The report as JSON, NaN written as ``null`` (strict JSON has no NaN)."""
-    return json.dumps(jsonable(report), indent=1, allow_nan=False) + "\n"
+    return json_text(report, indent=1)
 
 
 def format_table(report: Mapping) -> str:

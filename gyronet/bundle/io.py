@@ -17,7 +17,7 @@ from typing import Any, Mapping, NamedTuple
 
 import torch
 
-from gyronet.atomic import atomic_output, write_text
+from gyronet.atomic import atomic_output, write_json, write_text
 from gyronet.bundle.schema import (gyronet_version, BUNDLE_FORMAT, KALMAN_FILE, META_FILE, MODEL_FILE, TRAINED_FILE, ModelFacts,
                                    check_trained, trained_json)
 from gyronet.errors import BundleError
@@ -58,7 +58,7 @@ def save_bundle(model: torch.nn.Module, meta: Mapping[str, Any], out_dir: str | 
     sums = {MODEL_FILE: sha256_file(out_dir / MODEL_FILE)}
     kalman_path = out_dir / KALMAN_FILE
     if kalman is not None:
-        write_text(kalman_path, json.dumps(kalman, indent=2) + "\n")
+        write_json(kalman_path, kalman)
         sums[KALMAN_FILE] = sha256_file(kalman_path)
     elif kalman_path.exists():
         kalman_path.unlink()

@@ -12,8 +12,7 @@ from typing import Any, Callable, Mapping, Sequence
 import numpy as np
 import torch
 
-from gyronet.allan.report import report_to_json
-from gyronet.atomic import write_text
+from gyronet.atomic import write_json
 from gyronet.bundle.compensator import Compensator, build_meta
 from gyronet.bundle.io import save_bundle
 from gyronet.recordings.data import AXES, Recording, load_recording, load_truth, truth_path
@@ -104,16 +103,15 @@ def load_held_out(paths: Sequence[str]) -> dict[str, tuple[Recording, dict | Non
             for path in paths}
 
 
-def evaluate_paths(bundle_dir: Path, paths: Sequence[str] | Mapping[str, tuple[Recording, dict | None]],
+def evaluate_paths(bundle_dir: Path, held_out: Mapping[str, tuple[Recording, dict | None]],
                    block_s: float) -> dict[str, dict]:
-    """Evaluate a saved bundle on each held-out recording (paths, or :func:`load_held_out`'s).
+    """Evaluate a saved bundle on each held-out recording (:func:`load_held_out`'s, by path).
 
     Each result also holds ``residual_rms_dps``: the ``block_s`` block RMS of the compensated rate
     minus the recording's static rate, per axis (the figure there is without a truth). Each
     recording's share outside the trained temperature range and its figures are logged, so that
     they reach the console and not only ``report.json``.
     """
-    held_out = paths if isinstance(paths, Mapping) else load_held_out(paths)
     results = {}
     for path, (recording, truth) in held_out.items():
         compensator = Compensator.load(bundle_dir)
@@ -194,7 +192,7 @@ def train_run(data: DriftData, model: torch.nn.Module, optim: Callable | None, o
         metrics.update(_eval_metrics(result, prefix="eval" if len(evaluations) == 1 else f"eval_{Path(path).stem}"))
     if writer is not None:
         _log_run(writer, metrics, evaluations, hparams or model_info(model))
-    write_text(out_dir / "report.json", report_to_json(report))  # strict JSON: a figure with no value is null
+    write_json(out_dir / "report.json", report, indent=1)  # strict JSON: a figure with no value is null
     return metrics
 
 

@@ -21,6 +21,7 @@ import numpy as np
 from filterpy.kalman import KalmanFilter
 from scipy import signal
 
+from gyronet.atomic import write_json
 from gyronet.errors import GyronetError
 from gyronet.model.kalman.identify import AXES, KalmanModel
 from gyronet.model.kalman.state_space import axis_matrices, lfilter_state, q_rate_for_time_constant
@@ -281,9 +282,9 @@ class KalmanStage:
         return cls(KalmanModel.from_dict(data["model"]), **options)
 
     def save(self, path: str | os.PathLike) -> Path:
-        """Write :meth:`to_dict` as JSON (``kalman.json``)."""
+        """Write :meth:`to_dict` as JSON (``kalman.json``), whole or not at all."""
         path = Path(path)
-        path.write_text(json.dumps(self.to_dict(), indent=2, allow_nan=False) + "\n")
+        write_json(path, self.to_dict())
         return path
 
     @classmethod

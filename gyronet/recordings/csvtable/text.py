@@ -153,8 +153,8 @@ def check_header(path: Path, names: list[str], required: Sequence[str], delimite
     present = set(names)
     missing = [c for c in required if c not in present]
     if missing:
-        tool = other_tool(names)
-        lower = [c for c in missing if c in {n.strip().lower() for n in names}]
+        tool, as_lower = other_tool(names), {n.strip().lower() for n in names}
+        lower = [c for c in missing if c in as_lower]
         hint = (f"; it looks like a {tool} log: python scripts/convert.py input={path} output=F.csv format={tool}"
                 if tool else f"; names are lower case: {', '.join(lower)}" if lower else "")
         raise RecordingError(f"{path}: missing required column(s) {', '.join(missing)}"
