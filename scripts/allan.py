@@ -18,7 +18,7 @@ from gyronet.model import recalibration
 from gyronet.recordings.data import ALLAN_COLUMNS, load_recording
 from gyronet.errors import GyronetError
 from gyronet.recordings.importers.rosbag import is_rosbag, read_rates
-from gyronet.bundle.offline import SIGMA_COLUMNS
+from gyronet.bundle.offline import SIGMA_COLUMNS, STILL_S_KEY
 from gyronet.training.sigma_table import allan_sigma_summary
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # scripts/_cli.py, also when this file is run by path
@@ -27,7 +27,21 @@ from _cli import command  # noqa: E402
 log = logging.getLogger(__name__)
 
 
-@command("allan", schemas={"per_decade": int, "still_s": float})
+def _still_s(given, meta) -> float:
+    """``still_s`` as given, else the compensated file's own start-up window (``# startup_still_s=``), else 0."""
+    if given is not None:
+        return float(given)
+    text = meta.get(STILL_S_KEY)
+    try:
+        still_s = float(text) if text is not None else 0.0
+    except ValueError:
+        raise GyronetError(f"# {STILL_S_KEY}={text} is not a number of seconds: pass still_s=S") from None
+    if still_s:
+        log.info("still_s=%g from the file's # %s (the start-up window it was compensated with)", still_s, STILL_S_KEY)
+    return still_s
+
+
+@command("allan", schemas={"per_decade": int, "still_s": float | None})
 def main(cfg: DictConfig) -> None:
     if OmegaConf.is_missing(cfg, "input"):
         raise GyronetError("no recording given: add input=F.csv")
@@ -43,11 +57,12 @@ def main(cfg: DictConfig) -> None:
             log.info("%s: drift sigma median %.4g deg/s (95 %% %.4g, max %.4g)", axis, values["drift_sigma_median_dps"],
                      values["drift_sigma_p95_dps"], values["drift_sigma_max_dps"])
         outside = recording.columns.get("out_of_range")
+        still_s = _still_s(cfg.still_s, recording.meta)
         verdicts = recalibration.check(recording.time_s, recording.gyro_dps, sigma,
-                                       None if outside is None else np.asarray(outside) > 0, float(cfg.still_s))
+                                       None if outside is None else np.asarray(outside) > 0, still_s)
         if not verdicts:
             log.info("no recalibration check: fewer than two 60 s blocks with a drift_sigma after still_s=%g s",
-                     float(cfg.still_s))
+                     still_s)
         for axis, verdict in verdicts.items():  # a still record: does the bar still describe the sensor?
             report[axis]["recalibration"] = verdict
             (log.warning if verdict["recalibrate"] else log.info)(recalibration.summary_line(axis, verdict))

@@ -78,23 +78,31 @@ def test_a_short_record_is_judged_whole_and_rows_without_a_bar_are_left_out():
     assert check(time_s[:100], rate[:100], sigma[:100]) == {}
 
 
+def _allan(tmp_path, *overrides):
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")])}
+    proc = subprocess.run([sys.executable, str(ROOT / "scripts" / "allan.py"), "input=still.csv", "output=a.json",
+                           *overrides, f"hydra.run.dir={tmp_path / 'hydra'}"], cwd=tmp_path, env=env,
+                          capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0 and "Traceback" not in proc.stderr, proc.stderr
+    return json.loads((tmp_path / "a.json").read_text()), proc.stderr + proc.stdout
+
+
 def test_allan_script_reports_the_verdict_of_a_compensated_still_file(tmp_path):
+    """The start-up window is the file's own (compensate.py writes # startup_still_s=) unless still_s is given."""
     time_s, rate = _still(hours=3.0)
     columns = {"time_s": time_s, **{f"gyro_{a}_dps": rate[:, i] for i, a in enumerate("xyz")},
                "temp_c": np.full(len(time_s), 20.0), "out_of_range": np.zeros(len(time_s), np.int8),
                "bad_input": np.zeros(len(time_s), np.int8)}
     for i, name in enumerate(SIGMA_COLUMNS):
         columns[name] = np.full(len(time_s), DRIFT_DPS / (3.0 if i == 2 else 1.0))  # z's bar 3x too narrow
-    write_compensated(tmp_path / "still.csv", columns, tmp_path)
-    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")])}
-    proc = subprocess.run([sys.executable, str(ROOT / "scripts" / "allan.py"), "input=still.csv", "output=a.json",
-                           "still_s=600", f"hydra.run.dir={tmp_path / 'hydra'}"], cwd=tmp_path, env=env,
-                          capture_output=True, text=True, timeout=300)
-    assert proc.returncode == 0, proc.stderr
-    report = json.loads((tmp_path / "a.json").read_text())
+    write_compensated(tmp_path / "still.csv", columns, tmp_path, still_s=600.0)
+    assert "# startup_still_s=600\n" in (tmp_path / "still.csv").read_text()
+    report, log = _allan(tmp_path)
     assert [report[a]["recalibration"]["recalibrate"] for a in "xyz"] == [False, False, True]
     assert report["x"]["recalibration"]["n_blocks"] == 170  # from 600 s on
-    assert "z: recalibrate" in proc.stderr + proc.stdout and "Traceback" not in proc.stderr
+    assert "z: recalibrate" in log and "still_s=600 from the file's # startup_still_s" in log
+    report, _ = _allan(tmp_path, "still_s=0")
+    assert report["x"]["recalibration"]["n_blocks"] == 180
 
 
 def _live(time_s, rate, sigma, outside, chunks, still_s=0.0, writer=None):

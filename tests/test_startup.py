@@ -151,6 +151,7 @@ def test_compensate_script_takes_startup_and_refuses_motion_in_one_line(bundle, 
     expected = comp.process(recording.columns).rate_dps
     written = load_recording(out, required=("time_s", "gyro_x_dps")).gyro_dps
     np.testing.assert_allclose(written, expected, rtol=1e-11, atol=1e-12)
+    assert "\n# startup_still_s=300\n" in out.read_text()[:500]  # for allan.py's still_s
     # the same file with a turn in its first minute
     moved = dict(recording.columns)
     moved["gyro_y_dps"] = moved["gyro_y_dps"].copy()
@@ -184,6 +185,7 @@ def test_live_stream_with_startup_equals_offline(bundle, biased_csv, tmp_path):
                startup={"still_s": 60, "motion_dps": 0.5})
     thread.join(10)
     live = pd.read_csv(tmp_path / "live.csv", comment="#")
+    assert "\n# startup_still_s=60\n" in (tmp_path / "live.csv").read_text()[:500]
     comp = Compensator.load(bundle)
     comp.use_startup(still_s=60)
     offline = comp.process(load_recording(short).columns).rate_dps

@@ -17,6 +17,7 @@ log = logging.getLogger(__name__)
 # 13 digits: half a unit of the 13th is at most 5e-13 of the value, inside the 1e-12 round trip
 SIGNIFICANT_DIGITS = 13
 SIGMA_COLUMNS = [f"drift_sigma_{a}_dps" for a in AXES]  # CONTRACT.md section 3
+STILL_S_KEY = "startup_still_s"  # the output's # line naming the start-up window it was compensated with
 
 
 def output_columns(time_s: np.ndarray, temp_c: np.ndarray, out: Compensated) -> dict[str, np.ndarray]:
@@ -40,11 +41,20 @@ def output_columns(time_s: np.ndarray, temp_c: np.ndarray, out: Compensated) -> 
     return columns
 
 
-def write_compensated(path: str | Path, columns: dict[str, np.ndarray], bundle_dir: str | Path) -> Path:
+def compensated_meta(bundle_dir: str | Path, still_s: float = 0.0) -> dict[str, object]:
+    """A compensated file's ``#`` lines: the bundle, and the start-up window (for ``allan.py``'s ``still_s``)."""
+    meta: dict[str, object] = {"compensated_by": Path(bundle_dir).resolve()}
+    if still_s:
+        meta[STILL_S_KEY] = f"{float(still_s):g}"
+    return meta
+
+
+def write_compensated(path: str | Path, columns: dict[str, np.ndarray], bundle_dir: str | Path,
+                      still_s: float = 0.0) -> Path:
     """Write a compensated file whole or not at all (:func:`gyronet.atomic.atomic_output`): 13
     significant digits of every value, so any value reads back within 1e-12 relative (the
     vectorised writer), or pandas' ``%.13g`` per value if a column is not finite."""
-    meta = {"compensated_by": Path(bundle_dir).resolve()}
+    meta = compensated_meta(bundle_dir, still_s)
     if all(np.isfinite(v).all() for v in columns.values()):
         return write_csv(path, columns, meta, significant=SIGNIFICANT_DIGITS)
     with atomic_output(path) as tmp:
@@ -84,7 +94,8 @@ def compensate_file(bundle_dir: str | Path, input_path: str | Path, output_path:
         log.info(compensator.error_bar.trust_line())
     recording = load_recording(input_path)
     out = compensate_as_deployed(compensator, recording, resample)
-    write_compensated(output_path, output_columns(recording.time_s, recording.temp_c, out), bundle_dir)
+    still_s = 0.0 if compensator.startup is None else compensator.startup.still_s
+    write_compensated(output_path, output_columns(recording.time_s, recording.temp_c, out), bundle_dir, still_s)
     n_oor = int(out.out_of_range.sum())
     if n_oor:
         low, high = compensator.temp_range_c

@@ -26,7 +26,7 @@ except ImportError:  # an optional speed-up: repr alone writes the same bytes
     orjson = None
 
 from gyronet.bundle.compensator import Compensated
-from gyronet.bundle.offline import output_columns
+from gyronet.bundle.offline import compensated_meta, output_columns
 from gyronet.deploy.stream.summary import OutputError
 
 log = logging.getLogger(__name__)
@@ -77,7 +77,7 @@ class LiveWriter:
         When the file cannot be created or written (the file then ends with a complete line).
     """
 
-    def __init__(self, path: str | Path, bundle_dir: str | Path):
+    def __init__(self, path: str | Path, bundle_dir: str | Path, still_s: float = 0.0):
         self.path = Path(path)
         self.names = output_names()
         self.n_rows = 0
@@ -87,7 +87,8 @@ class LiveWriter:
             self._fd: int | None = os.open(self.path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o666)
         except OSError as err:
             raise OutputError(f"{self.path}: cannot create the output ({err.strerror or err})") from None
-        header = f"# compensated_by={Path(bundle_dir).resolve()}\n" + ",".join(self.names) + "\n"
+        meta = compensated_meta(bundle_dir, still_s)
+        header = "".join(f"# {key}={value}\n" for key, value in meta.items()) + ",".join(self.names) + "\n"
         self._write(header.encode("utf-8"), 0)
 
     def write(self, time_s: np.ndarray, temp_c: np.ndarray, out: Compensated) -> None:
