@@ -32,7 +32,7 @@ log = logging.getLogger(__name__)
 SPAN = 32  # intervals per span: stamp jitter of +-30 % of a period is at most 0.6 / 32 = 1.9 % of a span
 VOTES = 32  # spans voting: a change is declared SPAN + VOTES / 2 samples after it, at the latest
 TOLERANCE = 0.05  # a span this far off (relative) votes for a change; the bundle's own rate tolerance
-# a rate at least twice as fast is plain sooner: FAST intervals in a row under half the period (no loss
+# a rate at least twice as fast is plain sooner: FAST intervals in a row under half the period and above 0 (no loss
 # makes an interval shorter, and jitter of +-30 % cannot make FAST of them in a row that short)
 FAST = 8
 FAST_FACTOR = 0.5
@@ -106,8 +106,11 @@ class RateWatch:
         return self._change(row, time_s, new_s, row - (len(times) - 1 - first), times[first])
 
     def _change(self, row: int, time_s: float, new_s: float, since_row: int, since_time_s: float,
-                refined: bool = False) -> RateChange:
-        """Adopt the period ``new_s`` (the snap one if within the tolerance of it) from ``row`` on."""
+                refined: bool = False) -> RateChange | None:
+        """Adopt the period ``new_s`` (the snap one if within the tolerance of it) from ``row`` on; None (nothing
+        changed) if ``new_s`` is no period: stamps that repeat or step back."""
+        if not new_s > 0.0:
+            return None
         snapped = abs(new_s / self.snap_s - 1.0) <= TOLERANCE
         if snapped:
             new_s = self.snap_s
@@ -135,7 +138,8 @@ class RateWatch:
             change = self._decide(row, time_s)
         if change is None and self._since > FAST:
             times = list(self._times)[-(FAST + 1):]
-            if all(b - a < FAST_FACTOR * self.period_s for a, b in zip(times, times[1:])):
+            half_s = 0.5 * FAST_FACTOR * self.period_s  # 0 < interval < FAST_FACTOR periods (a repeat is no rate)
+            if all(abs(b - a - half_s) < half_s for a, b in zip(times, times[1:])):
                 change = self._change(row, time_s, (times[-1] - times[0]) / FAST, row - FAST, times[0])
         return change
 
@@ -172,7 +176,8 @@ class RateWatch:
             self._commit(block[:upto], has_span[:upto], vote[:upto])
             if len(hits):  # the deciding row, by the scalar code
                 change = self.step(float(block[upto]))
-                assert change is not None or refine_hit[upto]  # the vectorised votes and the deques agree
+                # the vectorised votes and the deques agree; None: no refinement needed, or no period (stamps back)
+                assert change is not None or refine_hit[upto] or decides[upto]
                 if change is not None:
                     changes.append(change)
                 upto += 1
@@ -198,7 +203,8 @@ class RateWatch:
         below = np.concatenate([[0], np.cumsum(intervals < low_s)])
         slow = (span_s > high_s) & (2 * (above[ends] - above[start]) > SPAN)
         fast = (span_s < low_s) & (2 * (below[ends] - below[start]) > SPAN)
-        short = np.concatenate([[0], np.cumsum(intervals < FAST_FACTOR * self.period_s)])
+        half_s = 0.5 * FAST_FACTOR * self.period_s  # 0 < interval < FAST_FACTOR periods, as step tests it
+        short = np.concatenate([[0], np.cumsum(np.abs(intervals - half_s) < half_s)])
         fast_start = np.clip(ends - FAST, 0, None)
         fast_hit = (since > FAST) & (short[ends] - short[fast_start] == FAST)
         return has_span, np.where(slow, 1, np.where(fast, -1, 0)), fast_hit

@@ -49,7 +49,7 @@ def feature_code(specs: Sequence[Mapping[str, Any]], fs_hz: float, aux: Sequence
     # v as a fresh filter sees it in a rejected row: the prior temperature, other columns 0 where not finite
     power_on.append("    float w[1 + GYRONET_N_AUX];\n    w[0] = PRIOR_TEMP_C;")
     for k in range(len(aux)):
-        power_on.append(f"    w[{k + 1}] = v[{k + 1}] - v[{k + 1}] == 0.0f ? v[{k + 1}] : 0.0f;")
+        power_on.append(f"    w[{k + 1}] = isfinite(v[{k + 1}]) ? v[{k + 1}] : 0.0f;")
     index_of = {feature_name(spec): i for i, spec in enumerate(specs)}
     for i, spec in enumerate(specs):
         kind, column = spec["kind"], spec.get("source", "temp_c")

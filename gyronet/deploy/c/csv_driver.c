@@ -11,6 +11,10 @@
  * "ns_per_sample=..."; still_s > 0 calls gyronet_start_offset first.
  */
 #define _POSIX_C_SOURCE 199309L
+#ifdef GYRONET_TRAP_FP /* -DGYRONET_TRAP_FP (glibc): an invalid operation, a division by zero or an overflow stops it */
+#define _GNU_SOURCE
+#include <fenv.h>
+#endif
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -40,6 +44,9 @@ int main(int argc, char **argv)
     gyronet_state state;
 #if GYRONET_N_AUX > 0
     float aux[GYRONET_N_AUX];
+#endif
+#ifdef GYRONET_TRAP_FP
+    feenableexcept(FE_INVALID | FE_DIVBYZERO | FE_OVERFLOW);
 #endif
     if (argc < 3 || !(in = fopen(argv[1], "r"))) {
         fprintf(stderr, "usage: %s in.csv out.csv [repeat [still_s]]\n", argv[0]);
