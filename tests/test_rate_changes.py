@@ -229,3 +229,15 @@ def test_training_with_a_kalman_stage_refuses_a_rate_change_in_one_line(fast_sim
     model = RBFNet(data.n_features, 3, 4, rbf_inputs=[0], linear=True, temp_degree=3, clamp=True)
     with pytest.raises(GyronetError, match=r"train.csv: near line \d+ .*from 2 Hz to 5 Hz.*kalman=disabled"):
         kalman_stage({"enabled": True}, model, data)
+
+
+def test_a_rate_change_error_crosses_a_process_boundary_intact():
+    """joblib and submitit pickle a worker's error: one that cannot be rebuilt took a whole fleet or sweep down."""
+    import pickle
+
+    from gyronet.recordings.rate_watch import RateChange
+
+    change = RateChange(33, 16.5, 1.0, 2.0, 30, 15.0, False)
+    error = pickle.loads(pickle.dumps(RateChangeError("F.csv: the sampling rate changes", change)))
+    assert isinstance(error, RateChangeError) and str(error) == "F.csv: the sampling rate changes"
+    assert error.change == change

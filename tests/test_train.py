@@ -195,9 +195,10 @@ def test_a_log_file_gets_a_line_per_fit_and_no_progress_bar_frames(tmp_path, pap
     assert "fit: " in log_text and "held-out 60 s RMSE" in log_text
 
 
-@pytest.mark.parametrize("bad", ["missing", "no_time_column"])
+@pytest.mark.parametrize("bad", ["missing", "no_time_column", "another_rate"])
 def test_a_bad_held_out_recording_is_refused_before_the_fit(paper_csv, tmp_path, monkeypatch, bad):
-    """A typo in eval.paths was found only once the bundle was trained (minutes, or a whole fleet)."""
+    """A typo in eval.paths was found only once the bundle was trained (minutes, or a whole fleet); a recording at
+    another rate, then, as a rate change at "input" with advice train.py does not take."""
     from gyronet.errors import GyronetError
     from gyronet.model.rbf import RBFNet
     from gyronet.training import pipeline
@@ -206,13 +207,16 @@ def test_a_bad_held_out_recording_is_refused_before_the_fit(paper_csv, tmp_path,
     held_out = tmp_path / "held_out.csv"
     if bad == "no_time_column":
         held_out.write_text("temp_c,gyro_x_dps,gyro_y_dps,gyro_z_dps\n20,0,0,0\n")
+    if bad == "another_rate":
+        rows = "".join(f"{k * 0.1:.1f},20,0,0,0\n" for k in range(400))  # 10 Hz, the training data 2 Hz
+        held_out.write_text("time_s,temp_c,gyro_x_dps,gyro_y_dps,gyro_z_dps\n" + rows)
 
     def no_fit(*args, **kwargs):
         raise AssertionError("fitted before the held-out recording was read")
 
     monkeypatch.setattr(pipeline, "fit", no_fit)
     data = DriftData(str(paper_csv))
-    with pytest.raises(GyronetError, match="held_out.csv"):
+    with pytest.raises(GyronetError, match="held_out.csv" + (" is sampled at 10 Hz" if bad == "another_rate" else "")):
         pipeline.train_run(data, RBFNet(data.n_features, 3, 4), None, tmp_path / "run", {"max_epochs": 5},
                            eval_paths=[str(held_out)])
     assert not (tmp_path / "run").exists()

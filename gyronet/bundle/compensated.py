@@ -17,6 +17,10 @@ class RateChangeError(BundleError):
         super().__init__(message)
         self.change = change
 
+    def __reduce__(self):
+        """Both arguments, so that a worker process's error reaches its parent (joblib, submitit) intact."""
+        return type(self), (str(self), self.change)
+
 
 class Compensated(NamedTuple):
     """Output of ``Compensator.process`` for n samples."""

@@ -13,8 +13,9 @@ import numpy as np
 import torch
 
 from gyronet.atomic import write_json
-from gyronet.bundle.compensator import Compensator, build_meta
+from gyronet.bundle.compensator import RATE_TOLERANCE, Compensator, build_meta
 from gyronet.bundle.io import save_bundle
+from gyronet.errors import GyronetError
 from gyronet.recordings.data import AXES, Recording, load_recording, load_truth, truth_path
 from gyronet.training import coverage
 from gyronet.training.dataset import DriftData, block_rmse, static_rate_dps
@@ -63,10 +64,9 @@ def kalman_stage(kalman_cfg: Mapping[str, Any] | None, model: torch.nn.Module, d
 
 def _refuse_rate_changes(recording: Any, fs_hz: float) -> None:
     """The Kalman stage is identified per sample at one rate: a rate change in the record is one line."""
-    from gyronet.errors import GyronetError
     from gyronet.recordings.rate_watch import RateWatch
 
-    changes = [c for c in RateWatch(fs_hz).scan(recording.time_s) if abs(c.new_hz / fs_hz - 1.0) > 0.05]
+    changes = [c for c in RateWatch(fs_hz).scan(recording.time_s) if abs(c.new_hz / fs_hz - 1.0) > RATE_TOLERANCE]
     if changes:
         change = changes[0]
         raise GyronetError(f"{recording.path}: near {recording.line_of(change.since_row)} (time_s="
@@ -96,11 +96,19 @@ def _meta(model: torch.nn.Module, data: DriftData) -> dict[str, Any]:
     return meta
 
 
-def load_held_out(paths: Sequence[str]) -> dict[str, tuple[Recording, dict | None]]:
+def load_held_out(paths: Sequence[str], fs_hz: float | None = None) -> dict[str, tuple[Recording, dict | None]]:
     """Each held-out recording with its ground truth when it has one: read before training, so that a missing or
-    malformed file is one line at once, not after the fit."""
-    return {str(path): (load_recording(path), load_truth(path).columns if truth_path(path).is_file() else None)
-            for path in paths}
+    malformed file, or one at another rate than the training data's ``fs_hz``, is one line at once, not after the
+    fit."""
+    held_out = {}
+    for path in paths:
+        recording = load_recording(path)
+        if fs_hz is not None and abs(recording.fs_hz / fs_hz - 1.0) > RATE_TOLERANCE:
+            raise GyronetError(f"eval.paths: {path} is sampled at {recording.fs_hz:g} Hz, the training data at "
+                               f"{fs_hz:g} Hz; a held-out recording must have the training rate (after training, "
+                               "compensate.py resample=true can run the bundle at another)")
+        held_out[str(path)] = (recording, load_truth(path).columns if truth_path(path).is_file() else None)
+    return held_out
 
 
 def evaluate_paths(bundle_dir: Path, held_out: Mapping[str, tuple[Recording, dict | None]],
@@ -115,6 +123,7 @@ def evaluate_paths(bundle_dir: Path, held_out: Mapping[str, tuple[Recording, dic
     results = {}
     for path, (recording, truth) in held_out.items():
         compensator = Compensator.load(bundle_dir)
+        compensator.rate_source, compensator.row_name = str(path), recording.line_of  # a message names the file
         result = evaluate(compensator, recording, truth, block_s)
         arrays = result["_arrays"]
         residual = block_rmse(arrays["time_s"], arrays["compensated_dps"] - static_rate_dps(recording), block_s)
@@ -161,7 +170,7 @@ def train_run(data: DriftData, model: torch.nn.Module, optim: Callable | None, o
     Returns the final metrics; ``val/rmse_dps`` is what a sweep minimises.
     """
     out_dir = Path(out_dir)
-    held_out = load_held_out(eval_paths)
+    held_out = load_held_out(eval_paths, data.fs_hz)
     folds = None
     if getattr(data, "n_runs", 1) > 1:  # several runs: leave-one-run-out, then the final fit on every run
         from gyronet.training.runs import fit_by_run
