@@ -318,6 +318,72 @@ def test_resume_refuses_other_fixed_overrides(app: Path) -> None:
     assert calls(app) == before
 
 
+def test_rerun_after_a_failed_generation_runs_it_again(app: Path) -> None:
+    """"Rerun to resume after fixing the cause": the failed generation was saved as done, so nothing was retried."""
+    assert run_app(app, "fail=always", check=False).returncode != 0
+    run_app(app, "fail=never")  # the fix is a changed setting: nothing of the failed sweep is reused
+    gens = history(app)["generations"]
+    assert len(gens) == 2 and all(e["status"] == "COMPLETED" for g in gens for e in g["individuals"])
+    assert (app / "sweep" / "interrupted" / "0").is_dir()  # the failed jobs' folders, set aside
+
+
+def test_resume_refuses_changed_data_and_breeding_but_not_reordered_overrides(app: Path) -> None:
+    data = app / "data.txt"
+    data.write_text("one")
+    run_app(app, f"+data={data}", "fail=never")
+    before = calls(app)
+    run_app(app, "fail=never", f"+data={data}", "hydra.sweeper.generations=3")  # the same, in another order
+    assert len(history(app)["generations"]) == 3
+    proc = run_app(app, f"+data={data}", "fail=never", "hydra.sweeper.generations=3", "hydra.sweeper.seed=7",
+                   check=False)
+    assert proc.returncode != 0 and "bred with other options (seed 0 now 7)" in proc.stderr
+    data.write_text("two")
+    proc = run_app(app, f"+data={data}", "fail=never", "hydra.sweeper.generations=4", check=False)
+    assert proc.returncode != 0 and f"a sweep of other data: {data} changed" in proc.stderr
+    assert calls(app) == before + sum(not e["cached"] for e in history(app)["generations"][2]["individuals"])
+
+
+def test_a_killed_first_generation_and_a_sweep_started_over_leave_no_old_files_in_use(app: Path) -> None:
+    killed = app / "sweep" / "0" / "tb"
+    killed.mkdir(parents=True)
+    (killed / "events.out.tfevents.killed").write_text("")
+    run_app(app)
+    assert (app / "sweep" / "interrupted" / "0" / "tb" / "events.out.tfevents.killed").is_file()
+    assert not (killed / "events.out.tfevents.killed").exists()
+    run_app(app, "hydra.sweeper.resume=false")
+    assert (app / "sweep" / "interrupted" / "tb").is_dir() and (app / "sweep" / "interrupted" / "0.1").is_dir()
+    assert len(list((app / "sweep" / "tb").glob("events.out.tfevents.*"))) == 1  # the new sweep's curves alone
+
+
+def test_a_second_sweep_in_the_same_folder_is_refused(app: Path) -> None:
+    first = start_app(app, "+sleep_s=1", "hydra.sweeper.generations=1")
+    try:
+        deadline = time.monotonic() + 60
+        while calls(app) == 0:  # the first holds the lock once it launches
+            assert first.poll() is None and time.monotonic() < deadline, "the first sweep did not start"
+            time.sleep(0.05)
+        proc = run_app(app, "+sleep_s=1", "hydra.sweeper.generations=1", check=False)
+        assert proc.returncode != 0 and "another GA sweep is running in" in proc.stderr
+    finally:
+        finish(first)
+
+
+def test_options_that_search_nothing_are_refused() -> None:
+    from hydra_plugins.gyronet_ga_sweeper.config import GAOptions
+
+    good = dict(population_size=4, generations=2, tournament_size=3, crossover_rate=0.9, mutation_rate=0.2,
+                mutation_scale=0.1, elitism=1, seed=0, max_failure_rate=0.5, start_from_config=True, resume=True,
+                best_artifact=None)
+    GAOptions(**good)
+    for key, value, message in [("population_size", 1, "population_size must be at least 2"),
+                                ("generations", 0, "generations must be at least 1"),
+                                ("elitism", 4, "elitism must be in"), ("elitism", -1, "elitism must be in"),
+                                ("tournament_size", 0, "tournament_size"), ("crossover_rate", 5.0, "crossover_rate"),
+                                ("mutation_scale", -0.1, "mutation_scale")]:
+        with pytest.raises(ValueError, match=message):
+            GAOptions(**{**good, key: value})
+
+
 def test_resume_refuses_another_search_space(app: Path) -> None:
     (app / "sweep").mkdir()
     space = [{"name": "x", "kind": "float", "low": 0.0, "high": 1.0}]

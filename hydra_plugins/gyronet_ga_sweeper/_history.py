@@ -112,6 +112,7 @@ class History:
     generations: List[Generation] = field(default_factory=list)
     options: Dict[str, Any] = field(default_factory=dict)
     final_run: Optional[Dict[str, Any]] = None  # the best's run with ``final``'s overrides: job_idx, job_dir, overrides
+    fixed_files: Dict[str, str] = field(default_factory=dict)  # SHA-256 of each file a fixed override names
 
     def evaluations(self) -> List[Evaluation]:
         """Every individual of every generation, in order."""
@@ -144,7 +145,7 @@ class History:
     def save(self, path: Path) -> None:
         """Write atomically, so an interruption never leaves a truncated file."""
         doc = {"version": FORMAT_VERSION, "search_space": self.search_space,
-               "fixed_overrides": self.fixed_overrides, "options": self.options,
+               "fixed_overrides": self.fixed_overrides, "fixed_files": self.fixed_files, "options": self.options,
                "generations": [g.to_json() for g in self.generations],
                **({"final_run": self.final_run} if self.final_run is not None else {})}
         tmp = path.with_name(path.name + ".tmp")
@@ -158,7 +159,8 @@ class History:
             raise ValueError(f"{path}: unknown format version {doc.get('version')!r}")
         return cls(search_space=doc["search_space"], fixed_overrides=doc["fixed_overrides"],
                    generations=[Generation.from_json(g) for g in doc["generations"]],
-                   options=doc.get("options", {}), final_run=doc.get("final_run"))
+                   options=doc.get("options", {}), final_run=doc.get("final_run"),
+                   fixed_files=doc.get("fixed_files", {}))
 
 
 def score(ret: JobReturn) -> Tuple[float, str, Optional[str]]:

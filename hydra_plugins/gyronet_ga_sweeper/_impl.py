@@ -17,7 +17,6 @@ from typing import Any, Dict, List, Optional
 import numpy as np
 from hydra.core.override_parser.overrides_parser import OverridesParser
 from hydra.core.plugins import Plugins
-from hydra.errors import HydraException
 from hydra.plugins.sweeper import Sweeper
 from hydra.types import HydraContext, TaskFunction
 from omegaconf import DictConfig, OmegaConf
@@ -28,16 +27,13 @@ from gyronet.training.ga import Individual, Param, next_generation, random_indiv
 from ._history import HISTORY_FILE, Evaluation, Generation, History, job_dir, params_key, score
 from ._space import describe, parse_search_space, tidy, to_overrides
 from ._tensorboard import SweepWriter
-from ._watchdog import WatchedTask, set_aside_interrupted_jobs
+from ._resume import GASweepError, lock_sweep_dir, start, too_many_failed
+from ._watchdog import WatchedTask
 from .config import GAOptions
 
 log = logging.getLogger(__name__)
 
 RESULTS_FILE = "optimization_results.yaml"
-
-
-class GASweepError(HydraException):
-    """The sweep cannot go on: too many failed jobs, or a history that does not match."""
 
 
 # ---------------------------------------------------------------- the sweeper
@@ -72,6 +68,7 @@ class GASweeperImpl(Sweeper):
             raise GASweepError("the GA sweeper has no search space: set hydra.sweeper.params or "
                                "pass sweep overrides such as x='interval(0, 1)'")
         self.sweep_dir.mkdir(parents=True, exist_ok=True)
+        self._lock = lock_sweep_dir(self.sweep_dir)  # held until this process ends
         history = self._start(space, fixed)
         opts = self.options
         log.info("GA sweep: population %d, generations %d, seed %d, into %s", opts.population_size,
@@ -99,35 +96,12 @@ class GASweeperImpl(Sweeper):
     # -- ask
 
     def _start(self, space: List[Param], fixed: List[str]) -> History:
-        """A new history, or the one in the sweep dir when resuming."""
-        path = self.sweep_dir / HISTORY_FILE
-        space_json = [p.to_dict() for p in space]
-        new = History(space_json, fixed, options=asdict(self.options))
-        if not path.exists():
-            return new
-        if not self.options.resume:
-            log.warning("resume=false: starting over, %s will be overwritten", path)
-            return new
-        try:
-            old = History.load(path)
-        except (ValueError, KeyError, TypeError) as err:  # JSONDecodeError is a ValueError
-            raise GASweepError(f"cannot resume from {path}: {err}; use a new hydra.sweep.dir, "
-                               "or hydra.sweeper.resume=false to start over there") from err
-        if old.search_space != space_json:
-            raise GASweepError(
-                f"{path} is a sweep over another search space ({old.search_space}); "
-                "use a new hydra.sweep.dir, or hydra.sweeper.resume=false to start over there")
-        if old.fixed_overrides != fixed:  # another recording or setting: its fitness would not compare
-            raise GASweepError(
-                f"{path} is a sweep with other fixed overrides ({old.fixed_overrides}, now {fixed}); "
-                "use a new hydra.sweep.dir, or hydra.sweeper.resume=false to start over there")
-        old.options = asdict(self.options)
-        self.job_idx = old.next_job_idx()
-        log.info("resuming %s: %d generation(s) done", path, len(old.generations))
+        """A new history, or the one in the sweep dir when resuming (``_resume.start``)."""
         assert self.config is not None
         subdir = OmegaConf.to_container(self.config.hydra.sweep, resolve=False).get("subdir")
-        set_aside_interrupted_jobs(self.sweep_dir, self.job_idx, subdir)
-        return old
+        history = start(self.sweep_dir, [p.to_dict() for p in space], fixed, self.options, subdir)
+        self.job_idx = history.next_job_idx()
+        return history
 
     def _breed(self, index: int, history: History, space: List[Param]) -> List[Individual]:
         """Generation ``index``, drawn from its own rng so a resumed sweep repeats it exactly."""
@@ -195,9 +169,9 @@ class GASweeperImpl(Sweeper):
         return Generation(index, individuals)
 
     def _check_failures(self, gen: Generation) -> None:
-        summary = gen.summary()
-        if summary["jobs"] == 0 or summary["failed"] / summary["jobs"] <= self.options.max_failure_rate:
+        if not too_many_failed(gen, self.options.max_failure_rate):
             return
+        summary = gen.summary()
         first = next(e for e in gen.individuals if e.failed and not e.cached)
         msg = (f"GA sweep stopped: {summary['failed']} of {summary['jobs']} jobs failed in "
                f"generation {gen.index}, more than max_failure_rate="

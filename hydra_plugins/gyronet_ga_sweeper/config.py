@@ -96,10 +96,21 @@ class GAOptions:
     final: Dict[str, str] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
-        if self.population_size < 1 or self.generations < 0:
-            raise ValueError("population_size must be >= 1 and generations >= 0")
-        if not 0.0 <= self.max_failure_rate <= 1.0:
-            raise ValueError(f"max_failure_rate must be in [0, 1], got {self.max_failure_rate}")
+        """Refuse options that would run a sweep that searches nothing, in one line each."""
+        if self.population_size < 2:  # one individual breeds no other: only the default config would be scored
+            raise ValueError(f"population_size must be at least 2, got {self.population_size}")
+        if self.generations < 1:
+            raise ValueError(f"generations must be at least 1, got {self.generations}")
+        if not 0 <= self.elitism < self.population_size:
+            raise ValueError(f"elitism must be in [0, population_size - 1 = {self.population_size - 1}] (the rest "
+                             f"are children), got {self.elitism}")
+        if self.tournament_size < 1:
+            raise ValueError(f"tournament_size must be at least 1, got {self.tournament_size}")
+        if self.mutation_scale < 0:
+            raise ValueError(f"mutation_scale must be >= 0, got {self.mutation_scale}")
+        for name in ("crossover_rate", "mutation_rate", "max_failure_rate"):
+            if not 0.0 <= getattr(self, name) <= 1.0:
+                raise ValueError(f"{name} must be in [0, 1], got {getattr(self, name)}")
 
 
 ConfigStore.instance().store(
