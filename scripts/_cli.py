@@ -100,6 +100,9 @@ def command(config_name: str, config_dir: str = "", schemas: Mapping[str, Any] |
             os.environ.update({"HYDRA_FULL_ERROR": "1", _OURS: "1"})
             try:
                 return hydra_main()
+            except KeyboardInterrupt:  # Ctrl-C: one line, not the traceback of wherever it landed
+                print("interrupted (Ctrl-C)", file=sys.stderr, flush=True)
+                raise SystemExit(130) from None
             except Exception as err:
                 message = user_message(err)
                 if message is None:

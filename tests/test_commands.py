@@ -292,3 +292,21 @@ def test_every_command_on_every_bad_input(tmp_path, bundle, bad_files):
 
 if __name__ == "__main__":
     _zygote(*sys.argv[1:3])
+
+
+def test_ctrl_c_is_one_line_and_exit_130(tmp_path):
+    """Ctrl-C printed the traceback of wherever it landed (40 lines in a GA sweep)."""
+    import signal
+    import time
+
+    proc = subprocess.Popen([sys.executable, "scripts/simulate.py", f"output={tmp_path / 'long.csv'}",
+                             "duration_s=2000000", f"hydra.run.dir={tmp_path / 'run'}"], cwd=ROOT,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 120
+    while not (tmp_path / "run" / ".hydra" / "config.yaml").exists():  # the task is running (23 days to simulate)
+        assert proc.poll() is None and time.monotonic() < deadline, proc.communicate()
+        time.sleep(0.05)
+    time.sleep(0.5)
+    proc.send_signal(signal.SIGINT)
+    out, err = proc.communicate(timeout=60)
+    assert proc.returncode == 130 and err.strip() == "interrupted (Ctrl-C)", err
