@@ -14,13 +14,22 @@ FITS = (None, "px4", "difference")
 
 
 @command("export", "deploy", schemas={"instance": int, "device_id": int, "vehicle_id": int, "component_id": int,
-                            "grid_points": int, "temp_rate_c_per_s": float, "history": str | None, "fit": str | None},
+                            "grid_points": int, "temp_rate_c_per_s": float, "history": str | None, "fit": str | None,
+                            "prefix": str},
          required=("model", "output"))
 def main(cfg: DictConfig) -> None:
     if cfg.format not in FORMATS:
         raise ConfigError(f"format must be one of {', '.join(FORMATS)}, got {cfg.format!r}")
     if cfg.get("fit") not in FITS:  # before the heavy imports, as gyronet.deploy.params.FORMS
         raise ConfigError(f"fit must be one of px4, difference (or null: the stack's own), got {cfg.fit!r}")
+    if cfg.device_id and cfg.format != "px4":
+        raise ConfigError(f"device_id is PX4's TC_G{{n}}_ID; format={cfg.format} has no device id (ArduPilot "
+                          "matches its IMU by instance)")
+    if cfg.format == "c" and cfg.instance:
+        raise ConfigError("instance picks PX4's or ArduPilot's IMU; for C, give each IMU's compensator its own "
+                          "prefix= (prefix=imu1: imu1_step, imu1_compensator.h)")
+    if cfg.format != "c" and cfg.prefix != "gyronet":
+        raise ConfigError("prefix names the C export's functions and files (format=c)")
     if cfg.format == "c":
         try:
             from gyronet.deploy.c_export import write_c
@@ -28,7 +37,7 @@ def main(cfg: DictConfig) -> None:
             if err.name != "gyronet.deploy.c_export":
                 raise
             raise ConfigError("format=c needs gyronet.deploy.c_export, which this install lacks") from None
-        summary = write_c(Path(cfg.model), Path(cfg.output))
+        summary = write_c(Path(cfg.model), Path(cfg.output), cfg.prefix)
         print("\n".join(f"{key}: {value}" for key, value in summary.items()))
         return
     from gyronet.deploy.params import export_params

@@ -17,7 +17,7 @@ import torch
 from gyronet.bundle.compensator import Compensator
 from gyronet.recordings.data import GYRO_COLUMNS, load_recording, write_recording
 from gyronet.deploy.c_export import DRIVER, write_c
-from gyronet.errors import BundleError
+from gyronet.errors import BundleError, GyronetError
 from gyronet.model.features import PAPER_FEATURES
 from gyronet.training.axis_lag import lagged_specs
 
@@ -77,6 +77,7 @@ def aux_csv(tmp_path_factory, paper_csv) -> Path:
 def bundles(tmp_path_factory, bundle, paper_csv, aux_csv) -> dict:
     """One bundle of every kind: default RBFNet, with Kalman stages, the paper's RBF, poly3, lsq, every feature kind."""
     from gyronet.model.baselines import LinearFeatures, TempPolynomial
+    from gyronet.model.px4 import Px4Cubic
     from gyronet.model.rbf import RBFNet
 
     root = tmp_path_factory.mktemp("c_bundles")
@@ -94,6 +95,7 @@ def bundles(tmp_path_factory, bundle, paper_csv, aux_csv) -> dict:
                               kalman={"mode": "rate", "q_rate_dps2_per_s": 1e-6}),
         "paper_rbf": _train(root / "rbf", paper_csv, lambda n: RBFNet(n, 3, 32, rbf_inputs=None)),
         "poly3": _train(root / "poly3", paper_csv, lambda n: TempPolynomial(n, 3, 3)),
+        "px4": _train(root / "px4", paper_csv, lambda n: Px4Cubic(n, 3)),  # model=px4: PX4's own script's cubic
         "lsq": _train(root / "lsq", paper_csv, lambda n: LinearFeatures(n, 3)),
         "aux": _train(root / "aux", aux_csv, default, features=every_kind),
         "members": _train_members(root / "members", paper_csv),
@@ -178,8 +180,8 @@ def _check(c_out: np.ndarray, py) -> None:
 
 
 @needs_cc
-@pytest.mark.parametrize("kind", ["default", "kalman", "kalman_rate", "paper_rbf", "poly3", "lsq", "aux", "members",
-                                  "axis_lag", "members_axis_lag"])
+@pytest.mark.parametrize("kind", ["default", "kalman", "kalman_rate", "paper_rbf", "poly3", "px4", "lsq", "aux",
+                                  "members", "axis_lag", "members_axis_lag"])
 def test_c_matches_compensator_on_a_hard_recording(kind, bundles, paper_csv, aux_csv, tmp_path):
     exe, summary = _build(bundles[kind], tmp_path)
     columns = _hard(_columns(aux_csv if kind == "aux" else paper_csv))
@@ -401,3 +403,43 @@ def test_float32_at_1khz_with_a_long_lag_after_11_days(tmp_path):
                **{c: 0.1 + 0.01 * rng.standard_normal(n) for c in GYRO_COLUMNS}}
     exe, _ = _build(tmp_path / "b", tmp_path)
     _check(_run_c(exe, columns, [], tmp_path), _python(tmp_path / "b", columns))
+
+
+@needs_cc
+def test_two_compensators_with_their_own_prefix_link_into_one_firmware(bundles, tmp_path):
+    """A board with two IMUs: gyronet_init and the rest were defined twice."""
+    for prefix, kind in (("imu1", "default"), ("imu2", "poly3")):
+        summary = write_c(bundles[kind], tmp_path / prefix, prefix=prefix)
+        assert [Path(f).name for f in summary["files"]] == [f"{prefix}_compensator.h", f"{prefix}_compensator.c"]
+    main = tmp_path / "main.c"
+    main.write_text('#include "imu1_compensator.h"\n#include "imu2_compensator.h"\n'
+                    "int main(void)\n{\n    imu1_state a;\n    imu2_state b;\n    const float g[3] = {0, 0, 0};\n"
+                    "    float o[3];\n    imu1_init(&a);\n    imu2_init(&b);\n"
+                    "    return imu1_step(&a, 0.0, 20.0f, g, o) | imu2_step(&b, 0.0, 20.0f, g, o) | "
+                    "(IMU1_FS_HZ > 0.0 && IMU2_FS_HZ > 0.0 ? 0 : 1);\n}\n")
+    exe = tmp_path / "two"
+    subprocess.run([CC, *CFLAGS, "-I", str(tmp_path / "imu1"), "-I", str(tmp_path / "imu2"), str(main),
+                    str(tmp_path / "imu1" / "imu1_compensator.c"), str(tmp_path / "imu2" / "imu2_compensator.c"),
+                    "-lm", "-o", str(exe)], check=True)
+    assert subprocess.run([str(exe)]).returncode == 0
+    with pytest.raises(GyronetError, match="prefix must be a C identifier"):
+        write_c(bundles["default"], tmp_path / "bad", prefix="9x")
+
+
+@needs_cc
+def test_an_offset_that_is_no_number_is_refused_in_c(bundle, tmp_path):
+    """gyronet_start_offset(NaN) armed a window that never closed, and no flag said so."""
+    write_c(bundle, tmp_path / "c")
+    main = tmp_path / "main.c"
+    main.write_text('#include <math.h>\n#include <stddef.h>\n#include "gyronet_compensator.h"\n'
+                    "int main(void)\n{\n    gyronet_state s;\n    const float g[3] = {0.1f, 0.2f, 0.3f};\n"
+                    "    float o[3];\n    int k, refused;\n    gyronet_init(&s);\n"
+                    "    refused = gyronet_start_offset(&s, NAN, NULL) == -1 && gyronet_start_offset(&s, 0.0, NULL) == -1\n"
+                    "        && gyronet_start_offset(&s, INFINITY, NULL) == -1;\n"
+                    "    for (k = 0; k < 100; ++k) {\n        gyronet_step(&s, 0.5 * k, 20.0f, g, o);\n    }\n"
+                    "    /* nothing applied: the rate is the gyro less the drift, finite */\n"
+                    "    return !(refused && s.offset_mode == 0 && isfinite(o[1])) || gyronet_start_offset(&s, 10.0, NULL);\n}\n")
+    exe = tmp_path / "offsets"
+    subprocess.run([CC, *CFLAGS, "-I", str(tmp_path / "c"), str(main), str(tmp_path / "c" / "gyronet_compensator.c"),
+                    "-lm", "-o", str(exe)], check=True)
+    assert subprocess.run([str(exe)]).returncode == 0

@@ -178,3 +178,23 @@ def test_export_command_writes_params_and_fails_in_one_line(px4_bundle, tmp_path
     failed = run_export(tmp_path, f"model={tmp_path}/none", "format=px4", f"output={tmp_path}/x.params")
     assert failed.returncode == 2 and "not a compensator bundle" in failed.stderr, failed.stderr
     assert len(failed.stderr.strip().splitlines()) == 1 and "Traceback" not in failed.stderr
+
+
+def test_an_output_that_is_not_an_export_is_never_replaced_and_ids_are_checked(px4_bundle, tmp_path):
+    """output=<bundle>/model.pt replaced the model with parameters (and a recording, or the user's F.json)."""
+    recording, notes = tmp_path / "rec.csv", tmp_path / "notes.json"
+    recording.write_text("time_s\n0\n")
+    notes.write_text("{}")
+    for output, message in [(px4_bundle / "model.pt", "is inside the bundle"),
+                            (recording, "exists and is not a .params file"),
+                            (tmp_path / "notes.params", "notes.json exists and is not an export's summary")]:
+        with pytest.raises(GyronetError, match=message):
+            export_params(px4_bundle, output, "px4", device_id=1)
+    assert recording.read_text() == "time_s\n0\n" and notes.read_text() == "{}"
+    assert read_bundle(px4_bundle)  # intact
+    for key, value in [("device_id", 2 ** 32), ("vehicle_id", 0), ("component_id", 256)]:
+        with pytest.raises(GyronetError, match=f"{key} must be in"):
+            export_params(px4_bundle, tmp_path / "x.params", "px4", **{key: value})
+    export_params(px4_bundle, tmp_path / "x.params", "px4", device_id=2 ** 32 - 1)  # a ULog's uint32 id
+    assert read_params(tmp_path / "x.params")["TC_G0_ID"] == -1  # as PX4's int32 parameter holds it
+    export_params(px4_bundle, tmp_path / "x.params", "px4", device_id=1)  # its own earlier export is replaced

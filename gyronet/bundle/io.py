@@ -104,7 +104,8 @@ def read_bundle(bundle_dir: str | Path) -> LoadedBundle:
     """
     bundle_dir = Path(bundle_dir)
     if not bundle_dir.is_dir():
-        raise BundleError(f"{bundle_dir}: not a compensator bundle (no such folder)")
+        what = "a file; model= takes the bundle's folder" if bundle_dir.is_file() else "no such folder"
+        raise BundleError(f"{bundle_dir}: not a compensator bundle ({what})")
     for name in (MODEL_FILE, META_FILE):
         if not (bundle_dir / name).is_file():
             inner = next((d for d in (bundle_dir / "compensator", bundle_dir / "best" / "compensator")

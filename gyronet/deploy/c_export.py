@@ -1,7 +1,7 @@
 """``format=c``: a bundle as a dependency-free C99 compensator for microcontrollers.
 
 ``write_c`` writes ``gyronet_compensator.h`` and ``.c``: float32, no heap, no library calls but
-``expf`` and ``fabsf``, the whole causal compensator of ``Compensator.process`` for one sample
+``expf`` and ``sqrtf``, the whole causal compensator of ``Compensator.process`` for one sample
 (temperature guard, feature filters with their gap bridging and restarts, the model with its clamp,
 the out-of-range and bad-input flags, the start-up offset, the Kalman stage when the bundle has
 one). The templates are ``gyronet/deploy/c/*.in``; the generated parts come from
@@ -21,11 +21,12 @@ from gyronet.deploy.c._error_bar import error_bar_code
 from gyronet.deploy.c._features import aux_inputs, feature_code
 from gyronet.deploy.c._kalman import kalman_code, no_kalman
 from gyronet.deploy.c._model import model_code
-from gyronet.errors import BundleError
+from gyronet.errors import BundleError, ConfigError
 from gyronet.model.features import GAP_FACTOR
 
 log = logging.getLogger(__name__)
 
+PREFIX = "gyronet"  # of every exported C name, and of the files' names
 HEADER, SOURCE = "gyronet_compensator.h", "gyronet_compensator.c"
 DRIVER = HERE / "csv_driver.c"  # a host program that runs the compensator over a CSV (tests, bench)
 
@@ -97,12 +98,16 @@ def _fill(template: str, values: dict[str, str]) -> str:
     return template
 
 
-def write_c(bundle_dir: Path, out_dir: Path) -> dict[str, Any]:
+def write_c(bundle_dir: Path, out_dir: Path, prefix: str = PREFIX) -> dict[str, Any]:
     """Write ``out_dir/gyronet_compensator.{h,c}`` for the bundle; a bundle it cannot export is one BundleError line.
 
+    ``prefix`` replaces ``gyronet`` in every name the files export (``<prefix>_step``, ``<PREFIX>_FS_HZ``,
+    ``<prefix>_compensator.h``), so that one firmware can link a compensator per IMU.
     Returns a summary: ``files`` written, model ``kind``, ``state_bytes`` (``sizeof(gyronet_state)``),
     ``aux_inputs``, ``kalman`` and ``kalman_transient_samples``.
     """
+    if not re.fullmatch(r"[A-Za-z][A-Za-z0-9_]*", prefix):
+        raise ConfigError(f"prefix must be a C identifier (a letter, then letters, digits or _), got {prefix!r}")
     from gyronet.bundle.compensator import Compensator
     from gyronet.bundle.io import load_unfrozen
 
@@ -144,12 +149,17 @@ def write_c(bundle_dir: Path, out_dir: Path) -> dict[str, Any]:
     }
     code = "\n".join([feats.accepted, feats.power_on, model.body, bar.members_body])
     values["USES"] = "\n".join(f"#define USES_{name} {int(call in code)}" for name, call in _HELPERS.items())
+    if out_dir.exists() and not out_dir.is_dir():
+        raise ConfigError(f"output={out_dir} is a file; format=c writes two files into a folder: name one")
     out_dir.mkdir(parents=True, exist_ok=True)
     written = []
     for name in (HEADER, SOURCE):
         text = _fill((HERE / f"{name}.in").read_text(), values)
-        write_text(out_dir / name, text)
-        written.append(str(out_dir / name))
+        if prefix != PREFIX:
+            text = re.sub(r"\bGYRONET_", f"{prefix.upper()}_", re.sub(r"\bgyronet_", f"{prefix}_", text))
+        path = out_dir / name.replace(PREFIX, prefix, 1)
+        write_text(path, text)
+        written.append(str(path))
     summary = {"files": written, "kind": model.kind, "state_bytes": state_bytes, "aux_inputs": aux,
                "kalman": compensator.kalman is not None, "kalman_transient_samples": kalman.n_transient,
                "model_numbers": model.n_numbers, "error_bar_numbers": bar.n_numbers,

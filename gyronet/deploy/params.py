@@ -131,7 +131,8 @@ def px4_rows(cubic: Cubic, instance: int = 0, device_id: int = 0) -> list[tuple[
     if not 0 <= instance <= 3:
         raise GyronetError(f"PX4 has gyro thermal parameters for instances 0-3 (TC_G0..TC_G3), not {instance}")
     prefix = f"TC_G{instance}"
-    rows: list[tuple[str, float | int, int]] = [("TC_G_ENABLE", 1, INT32), (f"{prefix}_ID", int(device_id), INT32)]
+    stored_id = int(device_id) - 2 ** 32 if device_id >= 2 ** 31 else int(device_id)  # a uint32 id in an int32
+    rows: list[tuple[str, float | int, int]] = [("TC_G_ENABLE", 1, INT32), (f"{prefix}_ID", stored_id, INT32)]
     rows += [(f"{prefix}_TMIN", _f32(cubic.temp_min_c), REAL32), (f"{prefix}_TMAX", _f32(cubic.temp_max_c), REAL32),
              (f"{prefix}_TREF", _f32(cubic.temp_ref_c), REAL32)]
     for k in range(4):
@@ -205,6 +206,22 @@ def ardupilot_cubic(values: dict[str, float], instance: int = 0) -> Cubic:
     return Cubic(values[f"{p}_TMIN"], values[f"{p}_TMAX"], ARDUPILOT_TREF_C, coef / ARDUPILOT_SCALE / RAD_PER_DEG)
 
 
+def _check_output(bundle_dir: Path, output: Path) -> None:
+    """Refuse an output that would replace what is not a parameter export: a bundle's file, a recording."""
+    if output.suffix == ".json":
+        raise GyronetError(f"output={output}: the cubic and its error go to <output>.json beside the .params file; "
+                           "name the parameter file F.params")
+    if output.resolve().parent == bundle_dir.resolve():
+        raise GyronetError(f"output={output} is inside the bundle {bundle_dir}; write the parameters elsewhere")
+    if output.exists() and output.suffix != ".params":
+        raise GyronetError(f"output={output} exists and is not a .params file, which export would replace; "
+                           "name a .params file")
+    sidecar = output.with_suffix(".json")
+    if sidecar.exists() and '"stated_error_dps"' not in sidecar.read_text(errors="replace"):
+        raise GyronetError(f"{sidecar} exists and is not an export's summary, which export would replace; "
+                           "name the output otherwise")
+
+
 def export_params(bundle_dir: str | Path, output: str | Path, stack: str = "px4", instance: int = 0,
                   device_id: int = 0, vehicle_id: int = 1, component_id: int = 1, grid_points: int = 2001,
                   temp_rate_c_per_s: float = DEFAULT_TEMP_RATE_C_PER_S, history: str | Path | None = None,
@@ -222,9 +239,11 @@ def export_params(bundle_dir: str | Path, output: str | Path, stack: str = "px4"
 
     if stack not in ("px4", "ardupilot"):
         raise GyronetError(f"parameters are written for px4 or ardupilot, not {stack!r}")
-    if Path(output).suffix == ".json":
-        raise GyronetError(f"output={output}: the cubic and its error go to <output>.json beside the .params file; "
-                           "name the parameter file F.params")
+    _check_output(Path(bundle_dir), Path(output))
+    for name, value, low, high in (("device_id", device_id, -2 ** 31, 2 ** 32 - 1), ("vehicle_id", vehicle_id, 1, 255),
+                                   ("component_id", component_id, 0, 255)):
+        if not low <= value <= high:  # a device id as PX4 stores it (int32) or as a ULog names it (uint32)
+            raise GyronetError(f"{name} must be in [{low}, {high}], got {value}")
     if grid_points < 8:
         raise GyronetError(f"grid_points must be at least 8 to fit and check a cubic, got {grid_points}")
     if fit is not None and fit not in FORMS:
@@ -234,9 +253,6 @@ def export_params(bundle_dir: str | Path, output: str | Path, stack: str = "px4"
     summary = {"format": stack, "bundle": str(bundle_dir), "params": str(output), **fit.summary()}
     if stack == "px4":
         rows, name = px4_rows(fit.cubic, instance, device_id), "PX4 Pro"
-        if not device_id:
-            log.warning("TC_G%d_ID is 0: PX4 applies TC_G%d_* only to the gyro whose device id it names; give "
-                        "device_id=<CAL_GYRO%d_ID of the calibrated board>", instance, instance, instance)
         summary["px4_firmware"] = px4_stated_error(grid, fit.cubic(grid), target, temp_rate_c_per_s)
         summary["stated_error_dps"] = summary["px4_firmware"]["max_error_dps"]
         summary["stated_error"] = ("largest |offset PX4 applies - bundle's curve|, the offset held from each "
@@ -256,6 +272,9 @@ def export_params(bundle_dir: str | Path, output: str | Path, stack: str = "px4"
         summary["history"] = {"recording": str(history), **history_error(
             recording.time_s, recording.temp_c, fit.cubic, curve(recording.temp_c), stack)}
     summary["n_params"] = len(rows)
+    if stack == "px4" and not device_id:  # after every check: a refused export is one line
+        log.warning("TC_G%d_ID is 0: PX4 applies TC_G%d_* only to the gyro whose device id it names; give "
+                    "device_id=<CAL_GYRO%d_ID of the calibrated board>", instance, instance, instance)
     output = Path(output)
     output.parent.mkdir(parents=True, exist_ok=True)
     write_text(output, params_text(rows, name, vehicle_id, component_id, source=str(bundle_dir)))

@@ -205,7 +205,8 @@ def _lsq_c(p: dict[str, Any]) -> tuple[str, str]:
     return constants, "\n".join(body)
 
 
-KNOWN = {"RBFNet": (_rbf, _rbf_c), "TempPolynomial": (_poly, _poly_c), "LinearFeatures": (_lsq, _lsq_c)}
+KNOWN = {"RBFNet": (_rbf, _rbf_c), "TempPolynomial": (_poly, _poly_c), "LinearFeatures": (_lsq, _lsq_c),
+         "Px4Cubic": (_poly, _poly_c), "Px4Onboard": (_poly, _poly_c)}  # PX4's two: a TempPolynomial fitted its way
 
 
 def model_code(module: Any, x_scale: np.ndarray, x_centre: np.ndarray, source: str) -> ModelCode:
@@ -219,7 +220,7 @@ def model_code(module: Any, x_scale: np.ndarray, x_centre: np.ndarray, source: s
     kind = str(module.original_name)
     if kind not in KNOWN:
         raise BundleError(f"{source}: a {kind} model, which the C export does not know (it knows "
-                          f"{', '.join(KNOWN)}); add it to gyronet/deploy/c/_model.py")
+                          f"{', '.join(KNOWN)})")
     read, to_c = KNOWN[kind]
     params, reference = read(module)
     rng = np.random.default_rng(0)
