@@ -106,9 +106,28 @@ def test_a_copy_of_a_run_under_another_name_is_refused(paper_csv, cycle_csv, tmp
     """Its fold would be scored on the very samples it was trained on, and look better than any held-out run."""
     import shutil
 
+    from gyronet.recordings.data import load_recording, write_recording
+
     copy = shutil.copy(cycle_csv, tmp_path / "copy_of_cycle.csv")
     with pytest.raises(GyronetError, match=f"copy_of_cycle.csv holds the same samples as {cycle_csv}"):
         training_data(paths=[str(paper_csv), str(cycle_csv), str(copy)])
+    # re-exported with a column more: the same run
+    recording = load_recording(cycle_csv)
+    more = write_recording(tmp_path / "more.csv", {**recording.columns, "vdd_v": recording.temp_c * 0 + 3.3},
+                           recording.meta, float_format="%.17g")
+    with pytest.raises(GyronetError, match="more.csv holds the same samples"):
+        training_data(paths=[str(cycle_csv), str(more)])
+
+
+def test_a_run_too_short_to_score_after_its_start_up_window_is_named(paper_csv, cycle_csv, tmp_path):
+    """It failed with numpy's 'Mean of empty slice' and 'no finite validation error', naming no run."""
+    from gyronet.recordings.data import load_recording, write_recording
+
+    short = load_recording(cycle_csv).slice(slice(0, 600))  # 300 s at 2 Hz
+    path = write_recording(tmp_path / "short.csv", short.columns, short.meta, float_format="%.17g")
+    with pytest.raises(GyronetError, match="short.csv: 300 s long; .*val_startup_s=600"):
+        training_data(paths=[str(paper_csv), str(path)], val_startup_s=600.0)
+    training_data(paths=[str(paper_csv), str(path)], val_startup_s=0.0)  # scored whole: enough
 
 
 def test_leave_one_run_out_mixes_every_start_by_the_held_out_runs_and_trains_the_final_model_on_all(

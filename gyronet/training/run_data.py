@@ -1,6 +1,7 @@
 """A campaign's runs one by one (loaded, featurised, blocked), below ``runs.RunsData`` so runs.py stays short."""
 from __future__ import annotations
 
+import hashlib
 import json
 import logging
 from dataclasses import dataclass, field
@@ -10,9 +11,10 @@ from typing import Any, Sequence
 import numpy as np
 
 from gyronet.errors import GyronetError
-from gyronet.recordings.data import Recording
+from gyronet.recordings.data import REQUIRED_COLUMNS, Recording
 from gyronet.training.dataset import (
     MIN_TEMP_SPAN_C,
+    MIN_TRAIN_BLOCKS,
     Blocks,
     _features_by_key,
     _file_key,
@@ -78,7 +80,7 @@ def load_runs(paths: Sequence[str], specs: Sequence[dict], static_rate: Sequence
     recordings = [load_cached(str(p)) for p in paths]
     first_with: dict[str, str] = {}
     for path, rec in zip(paths, recordings):  # a copy under another name would be held out against itself
-        first = first_with.setdefault(rec.checksum(), str(path))
+        first = first_with.setdefault(_samples_checksum(rec), str(path))
         if first != str(path):
             raise GyronetError(f"data.paths: {path} holds the same samples as {first}; each run must be a recording "
                                "of its own (a copy would score its fold in sample)")
@@ -108,6 +110,26 @@ def load_runs(paths: Sequence[str], specs: Sequence[dict], static_rate: Sequence
                     "training and of the trained range", path, int(np.count_nonzero(~accepted)), len(accepted))
         runs.append(Run(rec, name, features[accepted], targets[accepted], index, str(path), accepted))
     return runs
+
+
+def _samples_checksum(recording: Recording) -> str:
+    """sha256 of the samples every recording has (time, temperature, gyro): a re-export that adds or drops an
+    auxiliary column is the same run."""
+    digest = hashlib.sha256()
+    for name in REQUIRED_COLUMNS:
+        digest.update(np.ascontiguousarray(recording.columns[name], dtype=np.float64).tobytes())
+    return digest.hexdigest()
+
+
+def check_long_enough(runs: Sequence[Run], startup_s: float, block_s: float) -> None:
+    """Every run, held out, must leave blocks to score after its start-up window (``data.val_startup_s``)."""
+    for run in runs:
+        duration_s = float(run.time_s[-1] - run.time_s[0]) if len(run.time_s) else 0.0
+        if startup_s > 0 and duration_s < startup_s + MIN_TRAIN_BLOCKS * block_s:
+            raise GyronetError(f"{run.path}: {duration_s:.0f} s long; held out, a run is scored after its first "
+                               f"data.val_startup_s={startup_s:g} s (as deployed with startup.still_s), which leaves "
+                               f"fewer than {MIN_TRAIN_BLOCKS} blocks of {block_s:g} s: give longer runs, or "
+                               "data.val_startup_s=0")
 
 
 @dataclass

@@ -25,7 +25,7 @@ from gyronet.model.features import PAPER_FEATURES
 from gyronet.recordings.data import AXES
 from gyronet.training.capacity import MIN_IN_BOX_S, inside_box
 from gyronet.training.dataset import MIN_TRAIN_BLOCKS, DriftData, TrainingData
-from gyronet.training.run_data import Run, RunBlocks, load_runs, scored_after_startup, run_name, stack_runs
+from gyronet.training.run_data import Run, RunBlocks, check_long_enough, load_runs, scored_after_startup, run_name, stack_runs
 from gyronet.training.run_offsets import RunOffsets
 
 log = logging.getLogger(__name__)
@@ -134,6 +134,7 @@ def training_data(path: str | None = None, paths: Sequence[str] | None = None, r
             if spec["kind"] == "rate":
                 spec["tau_s"] = float(rate_tau_s)
     runs = load_runs([str(p) for p in paths], features, static_rate_dps)
+    check_long_enough(runs, float(val_startup_s or 0.0), block_s)
     return RunsData(runs, features, block_s, static_rate_dps, run_offsets=run_offsets, val_startup_s=val_startup_s)
 
 
