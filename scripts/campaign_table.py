@@ -1,4 +1,6 @@
-"""The real-data table, each run held out in turn: python scripts/campaign_table.py 'runs=[A.csv,B.csv]' output=T.md."""
+"""The real-data table, each run held out in turn: python scripts/campaign_table.py 'data.paths=[A.csv,B.csv]' output=T.md.
+
+``runs=[...]`` is the older spelling of ``data.paths``."""
 import logging
 import sys
 from pathlib import Path
@@ -18,8 +20,11 @@ MODEL_CONF = Path(__file__).resolve().parents[1] / "conf" / "model"
 DATA_CONF = MODEL_CONF.parent / "data" / "default.yaml"
 
 
-@command("campaign", schemas={"train": "gyronet.training.train.fit", "seed": int}, required=("runs",))
+@command("campaign", schemas={"train": "gyronet.training.train.fit", "seed": int})
 def main(cfg: DictConfig) -> None:
+    runs = cfg.data.paths if cfg.data.paths is not None else cfg.runs
+    if runs is None:
+        raise GyronetError("no runs given: add 'data.paths=[A.csv,B.csv]' (two or more runs of one unit)")
     models, data_options = {}, {}
     for name in cfg.models:
         if name == "raw":
@@ -27,7 +32,7 @@ def main(cfg: DictConfig) -> None:
             continue
         spec, data_options[name] = _variant(name, cfg.variants)
         models[name] = lambda n_inputs, spec=spec, **more: instantiate(spec, n_inputs=n_inputs, **more)
-    table = held_out_table(list(cfg.runs), models, float(cfg.startup_s), float(cfg.score_from_s), bool(cfg.run_offsets),
+    table = held_out_table(list(runs), models, float(cfg.startup_s), float(cfg.score_from_s), bool(cfg.run_offsets),
                            OmegaConf.to_container(cfg.train), int(cfg.seed), data_options)
     markdown = to_markdown(table)
     output = Path(cfg.output)

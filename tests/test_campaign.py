@@ -95,3 +95,23 @@ def test_a_run_without_a_cold_dwell_long_enough_for_its_floor_is_one_line():
     with pytest.raises(GyronetError, match=r"ramp.csv: its cold dwell .* is 40 samples, too short") as err:
         floor_dps(Recording(columns, {"fs_hz": "2"}, "ramp.csv"))
     assert "\n" not in str(err.value)
+
+
+def test_the_command_takes_data_paths_as_train_py_does_and_runs_still(paper_csv, cycle_csv, tmp_path):
+    """campaign_table.py refused data.paths, the contract's spelling, as an unknown setting."""
+    import json
+    import subprocess
+
+    root = Path(__file__).resolve().parents[1]
+    paths = f"[{paper_csv},{cycle_csv}]"
+    for key in ("data.paths", "runs"):
+        out = tmp_path / key / "t.md"
+        done = subprocess.run([sys.executable, "scripts/campaign_table.py", f"{key}={paths}", "models=[raw]",
+                               f"output={out}", "startup_s=60", "score_from_s=60", f"hydra.run.dir={tmp_path / key}"],
+                              cwd=root, capture_output=True, text=True)
+        assert done.returncode == 0, done.stderr
+        assert set(json.loads(out.with_suffix(".json").read_text())["runs"]) == {"paper", "cycle"}
+    none = subprocess.run([sys.executable, "scripts/campaign_table.py", f"hydra.run.dir={tmp_path / 'none'}"],
+                          cwd=root, capture_output=True, text=True)
+    assert none.returncode == 2 and none.stderr.strip().splitlines() == [
+        "error: no runs given: add 'data.paths=[A.csv,B.csv]' (two or more runs of one unit)"]
