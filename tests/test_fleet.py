@@ -36,8 +36,11 @@ def test_units_are_named_after_their_files(tmp_path, monkeypatch):
         "+unit='line1/a','line2/007'", "data.path='units/${unit}.csv'", "hydra.sweep.subdir=${unit}"]
     with pytest.raises(GyronetError, match=r"no file matches 'units/\*.bag'"):
         find_units("units/*.bag")
-    with pytest.raises(GyronetError, match=r"not recordings of one kind \(\.txt\).*convert others first"):
+    with pytest.raises(GyronetError, match=r"not recordings of one kind \(\.csv, \.txt\).*convert others first"):
         find_units("units/**/*")
+    touch(tmp_path / "units" / "line3" / "b.csv.gz")  # said "()": both are recordings, of two kinds
+    with pytest.raises(GyronetError, match=r"not recordings of one kind \(\.csv, \.csv\.gz\)"):
+        find_units("units/**/*.csv*")
     touch(tmp_path / "odd" / "it's.csv")
     with pytest.raises(GyronetError, match="Hydra overrides cannot carry; rename the file"):
         find_units("odd/*.csv")

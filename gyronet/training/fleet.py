@@ -58,8 +58,8 @@ def find_units(pattern: str) -> tuple[dict[str, str], str, str]:
         raise GyronetError(f"no file matches {pattern!r} (relative to {os.getcwd()})")
     suffix = next((s for s in SUFFIXES if all(p.endswith(s) for p in paths)), None)
     if suffix is None:
-        others = sorted({Path(p).suffix or Path(p).name for p in paths if not p.endswith(SUFFIXES)})
-        raise GyronetError(f"{pattern!r} matches files that are not recordings of one kind ({', '.join(others)}); "
+        kinds = sorted({next((s for s in SUFFIXES if p.endswith(s)), Path(p).suffix or Path(p).name) for p in paths})
+        raise GyronetError(f"{pattern!r} matches files that are not recordings of one kind ({', '.join(kinds)}); "
                            "a fleet trains on CSV recordings (all .csv or all .csv.gz): convert others first "
                            "with scripts/convert.py, or narrow the pattern")
     root = os.path.commonpath([os.path.dirname(p) or "." for p in paths]) or "."  # '' for '.' and 'units'
