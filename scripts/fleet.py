@@ -73,6 +73,8 @@ def main() -> None:
         train.main()
     except SystemExit as stop:  # a failed unit: its error is already on stderr; tabulate the others
         status = stop.code if isinstance(stop.code, int) else EXIT_BAD_INPUT
+    if status and not any((Path(sweep_dir) / unit).is_dir() for unit in units):  # refused before any unit ran
+        raise SystemExit(status)
     table = fleet_table(sweep_dir, spec_range_c)
     output = write_table(table, Path(sweep_dir) / TABLE)
     print(f"fleet: {table['n_ok']} of {table['n_units']} units trained; table {output} (and .json)", file=sys.stderr)

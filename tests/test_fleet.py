@@ -109,6 +109,11 @@ def test_bad_fleet_input_is_one_line(tmp_path):
     assert not (tmp_path / "outputs").exists()  # nothing launched, no sweep folder
     done = run("fleet_table.py", f"sweep={tmp_path}", f"hydra.run.dir={tmp_path / 'h'}", cwd=tmp_path)
     assert done.returncode == 2 and done.stderr.strip().splitlines()[-1].startswith(f"error: {tmp_path}: no {UNITS_FILE}")
+    (tmp_path / "units").mkdir()
+    (tmp_path / "units" / "a.csv").write_text("time_s,temp_c,gyro_x_dps,gyro_y_dps,gyro_z_dps\n0,20,0,0,0\n")
+    done = run("fleet.py", "data.path=glob(units/*.csv)", "data.pth=3", "hydra.sweep.dir=S", cwd=tmp_path)
+    assert done.returncode == 2 and "data.pth" in done.stderr and "fleet:" not in done.stderr  # refused before a unit
+    assert not (tmp_path / "S" / "fleet_table.md").exists()
 
 
 
