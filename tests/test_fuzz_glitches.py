@@ -58,8 +58,10 @@ def damages(draw):
         else:  # a jump no thermal mass allows, shorter than the guard's confirmation
             length = draw(st.integers(1, CONFIRM_SAMPLES - 1))
             values = [draw(st.sampled_from([15.0, -15.0, 40.0, -60.0]))] * length
+        if any(r in temp for r in range(start - 1, start + length + 1)):
+            continue  # two runs side by side of one jump would be a step the guard confirms: a real one
         for row, value in zip(range(start, start + length), values):
-            temp.setdefault(row, value)
+            temp[row] = value
     gyro: dict[int, tuple[int, float]] = {}
     for row in draw(st.lists(st.sampled_from([r for r in free if r not in temp]), max_size=20, unique=True)):
         gyro[row] = (draw(st.integers(0, 2)), draw(st.sampled_from([2e4, -2e4, 1e300, -1e300, 1e5])))
