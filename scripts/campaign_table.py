@@ -22,6 +22,8 @@ DATA_CONF = MODEL_CONF.parent / "data" / "default.yaml"
 
 @command("campaign", schemas={"train": "gyronet.training.train.fit", "seed": int})
 def main(cfg: DictConfig) -> None:
+    if cfg.data.paths is not None and cfg.runs is not None:
+        raise GyronetError("give the runs once: data.paths=[...] (runs=[...] is its older spelling)")
     runs = cfg.data.paths if cfg.data.paths is not None else cfg.runs
     if runs is None:
         raise GyronetError("no runs given: add 'data.paths=[A.csv,B.csv]' (two or more runs of one unit)")

@@ -23,8 +23,8 @@ def main(cfg: DictConfig) -> None:
     if cfg.get("fit") not in FITS:  # before the heavy imports, as gyronet.deploy.params.FORMS
         raise ConfigError(f"fit must be one of px4, difference (or null: the stack's own), got {cfg.fit!r}")
     if cfg.device_id and cfg.format != "px4":
-        raise ConfigError(f"device_id is PX4's TC_G{{n}}_ID; format={cfg.format} has no device id (ArduPilot "
-                          "matches its IMU by instance)")
+        raise ConfigError(f"device_id is PX4's TC_G{{n}}_ID; format={cfg.format} takes none"
+                          + (" (ArduPilot matches its IMU by instance)" if cfg.format == "ardupilot" else ""))
     if cfg.format == "c" and cfg.instance:
         raise ConfigError("instance picks PX4's or ArduPilot's IMU; for C, give each IMU's compensator its own "
                           "prefix= (prefix=imu1: imu1_step, imu1_compensator.h)")

@@ -5,6 +5,7 @@ by ``gyronet/deploy/c/csv_driver.c`` over a recording with lost samples, a confi
 step, out-of-range temperatures and NaN / impossible inputs; its output must match
 ``Compensator.process`` (what compensate.py runs) to 1e-4 deg/s and its flags exactly.
 """
+import platform
 import shutil
 import subprocess
 import sys
@@ -128,7 +129,8 @@ def _hard(columns: dict) -> dict:
     temp[int(np.argmax(temp > np.nanmax(temp[temp < 1e3]) - 4.0)):] += 6.0
     gyro_x[[500, 20000]] = np.nan
     gyro_z[[600, 600 + 1, 25000]] = 1e5
-    out["time_s"][[350, 21000]] = np.nan, np.inf  # stamps that are no time: lost samples
+    out["time_s"][[350, 21000, 21001]] = np.nan, np.inf, np.inf  # stamps that are no time: lost samples (two infs
+    # in a row: inf - inf raised FE_INVALID in the rate watch)
     out["time_s"][15000:15010] = out["time_s"][15000]  # a FIFO's batch stamped once: no rate, no division by zero
     if AUX in out:
         out[AUX][[700, 26000]] = np.nan
@@ -148,7 +150,7 @@ def _build(bundle: Path, work: Path) -> tuple[Path, dict]:
     subprocess.run([CC, *CFLAGS, "-c", str(work / "c" / "gyronet_compensator.c"), "-o", str(obj)], check=True)
     exe = work / "driver"
     # with floating-point traps on (as ArduPilot's SITL runs): NaN input must not raise FE_INVALID
-    trap = ["-DGYRONET_TRAP_FP"] if sys.platform == "linux" else []
+    trap = ["-DGYRONET_TRAP_FP"] if platform.libc_ver()[0] == "glibc" else []  # feenableexcept is glibc's
     subprocess.run([CC, *CFLAGS, *trap, "-I", str(work / "c"), str(DRIVER), str(obj), "-lm", "-o", str(exe)], check=True)
     return exe, summary
 
@@ -422,8 +424,14 @@ def test_two_compensators_with_their_own_prefix_link_into_one_firmware(bundles, 
                     str(tmp_path / "imu1" / "imu1_compensator.c"), str(tmp_path / "imu2" / "imu2_compensator.c"),
                     "-lm", "-o", str(exe)], check=True)
     assert subprocess.run([str(exe)]).returncode == 0
-    with pytest.raises(GyronetError, match="prefix must be a C identifier"):
-        write_c(bundles["default"], tmp_path / "bad", prefix="9x")
+    for bad in ("9x", "IMU1"):  # upper case: IMU1 and imu1 would share the macros
+        with pytest.raises(GyronetError, match="prefix must be a lower-case C identifier"):
+            write_c(bundles["default"], tmp_path / "bad", prefix=bad)
+    import shutil
+
+    named = shutil.copytree(bundles["default"], tmp_path / "gyronet_unit7")  # the bundle's name is not a C name
+    write_c(named, tmp_path / "imu3", prefix="imu3")
+    assert "from the bundle gyronet_unit7 " in (tmp_path / "imu3" / "imu3_compensator.h").read_text()
 
 
 @needs_cc

@@ -111,7 +111,9 @@ def test_the_command_takes_data_paths_as_train_py_does_and_runs_still(paper_csv,
                               cwd=root, capture_output=True, text=True)
         assert done.returncode == 0, done.stderr
         assert set(json.loads(out.with_suffix(".json").read_text())["runs"]) == {"paper", "cycle"}
-    none = subprocess.run([sys.executable, "scripts/campaign_table.py", f"hydra.run.dir={tmp_path / 'none'}"],
-                          cwd=root, capture_output=True, text=True)
-    assert none.returncode == 2 and none.stderr.strip().splitlines() == [
-        "error: no runs given: add 'data.paths=[A.csv,B.csv]' (two or more runs of one unit)"]
+    for args, message in [((), "error: no runs given: add 'data.paths=[A.csv,B.csv]' (two or more runs of one unit)"),
+                          ((f"data.paths={paths}", f"runs={paths}"), "error: give the runs once: data.paths=[...] "
+                                                                     "(runs=[...] is its older spelling)")]:
+        refused = subprocess.run([sys.executable, "scripts/campaign_table.py", *args,
+                                  f"hydra.run.dir={tmp_path / 'refused'}"], cwd=root, capture_output=True, text=True)
+        assert refused.returncode == 2 and refused.stderr.strip().splitlines() == [message]

@@ -185,12 +185,15 @@ def test_an_output_that_is_not_an_export_is_never_replaced_and_ids_are_checked(p
     recording, notes = tmp_path / "rec.csv", tmp_path / "notes.json"
     recording.write_text("time_s\n0\n")
     notes.write_text("{}")
+    vehicle = tmp_path / "vehicle.params"  # QGroundControl's dump of a vehicle's parameters
+    vehicle.write_text("# Onboard parameters for Vehicle 1\n1\t1\tCAL_GYRO0_ID\t2359306\t6\n")
     for output, message in [(px4_bundle / "model.pt", "is inside the bundle"),
-                            (recording, "exists and is not a .params file"),
+                            (recording, "exists and is not a parameter file gyronet exported"),
+                            (vehicle, "exists and is not a parameter file gyronet exported"),
                             (tmp_path / "notes.params", "notes.json exists and is not an export's summary")]:
         with pytest.raises(GyronetError, match=message):
             export_params(px4_bundle, output, "px4", device_id=1)
-    assert recording.read_text() == "time_s\n0\n" and notes.read_text() == "{}"
+    assert recording.read_text() == "time_s\n0\n" and notes.read_text() == "{}" and "CAL_GYRO0_ID" in vehicle.read_text()
     assert read_bundle(px4_bundle)  # intact
     for key, value in [("device_id", 2 ** 32), ("vehicle_id", 0), ("component_id", 256)]:
         with pytest.raises(GyronetError, match=f"{key} must be in"):

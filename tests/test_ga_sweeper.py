@@ -352,17 +352,19 @@ def test_a_killed_first_generation_and_a_sweep_started_over_leave_no_old_files_i
     assert not (killed / "events.out.tfevents.killed").exists()
     run_app(app, "hydra.sweeper.resume=false")
     assert (app / "sweep" / "interrupted" / "tb").is_dir() and (app / "sweep" / "interrupted" / "0.1").is_dir()
+    # and its history: a kill before the new generation 0 is saved must not resume the discarded sweep
+    assert (app / "sweep" / "interrupted" / "ga_history.json").is_file()
     assert len(list((app / "sweep" / "tb").glob("events.out.tfevents.*"))) == 1  # the new sweep's curves alone
 
 
 def test_a_second_sweep_in_the_same_folder_is_refused(app: Path) -> None:
-    first = start_app(app, "+sleep_s=1", "hydra.sweeper.generations=1")
+    first = start_app(app, "+sleep_s=5", "hydra.sweeper.generations=1")  # four jobs of 5 s, one at a time
     try:
         deadline = time.monotonic() + 60
-        while calls(app) == 0:  # the first holds the lock once it launches
+        while calls(app) == 0:  # the first holds the lock once it launches: 15 s more at least
             assert first.poll() is None and time.monotonic() < deadline, "the first sweep did not start"
             time.sleep(0.05)
-        proc = run_app(app, "+sleep_s=1", "hydra.sweeper.generations=1", check=False)
+        proc = run_app(app, "+sleep_s=5", "hydra.sweeper.generations=1", check=False)
         assert proc.returncode != 0 and "another GA sweep is running in" in proc.stderr
     finally:
         finish(first)

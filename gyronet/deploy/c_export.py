@@ -27,6 +27,7 @@ from gyronet.model.features import GAP_FACTOR
 log = logging.getLogger(__name__)
 
 PREFIX = "gyronet"  # of every exported C name, and of the files' names
+_BUNDLE_MARK = "\x00bundle\x00"  # the bundle's path, filled in after the names are prefixed
 HEADER, SOURCE = "gyronet_compensator.h", "gyronet_compensator.c"
 DRIVER = HERE / "csv_driver.c"  # a host program that runs the compensator over a CSV (tests, bench)
 
@@ -70,7 +71,7 @@ _STATE = [
     ("int", "watch_head", 1, "the oldest stamp in watch_times"),
     ("int", "watch_vote_head", 1, "the oldest vote"),
     ("int", "watch_n_votes", 1, ""),
-    ("int", "watch_since", 1, "samples since init or the last rate change"),
+    ("int", "watch_since", 1, "samples since init or the last rate change, up to 41 (compared with 32 and 8)"),
     ("int", "rate_changed", 1, "1 once the rate changed to one not the bundle's: GYRONET_RATE_CHANGED from then on"),
 ]
 # the template's optional helpers, and what a generated body calls them by
@@ -106,8 +107,9 @@ def write_c(bundle_dir: Path, out_dir: Path, prefix: str = PREFIX) -> dict[str, 
     Returns a summary: ``files`` written, model ``kind``, ``state_bytes`` (``sizeof(gyronet_state)``),
     ``aux_inputs``, ``kalman`` and ``kalman_transient_samples``.
     """
-    if not re.fullmatch(r"[A-Za-z][A-Za-z0-9_]*", prefix):
-        raise ConfigError(f"prefix must be a C identifier (a letter, then letters, digits or _), got {prefix!r}")
+    if not re.fullmatch(r"[a-z][a-z0-9_]*", prefix):  # lower case: imu and IMU would share the macros' names
+        raise ConfigError(f"prefix must be a lower-case C identifier (a letter, then letters, digits or _), got "
+                          f"{prefix!r}")
     from gyronet.bundle.compensator import Compensator
     from gyronet.bundle.io import load_unfrozen
 
@@ -154,9 +156,10 @@ def write_c(bundle_dir: Path, out_dir: Path, prefix: str = PREFIX) -> dict[str, 
     out_dir.mkdir(parents=True, exist_ok=True)
     written = []
     for name in (HEADER, SOURCE):
-        text = _fill((HERE / f"{name}.in").read_text(), values)
-        if prefix != PREFIX:
+        text = _fill((HERE / f"{name}.in").read_text(), {**values, "BUNDLE": _BUNDLE_MARK})
+        if prefix != PREFIX:  # the exported names, not the bundle's path in the comment (filled after)
             text = re.sub(r"\bGYRONET_", f"{prefix.upper()}_", re.sub(r"\bgyronet_", f"{prefix}_", text))
+        text = text.replace(_BUNDLE_MARK, values["BUNDLE"])
         path = out_dir / name.replace(PREFIX, prefix, 1)
         write_text(path, text)
         written.append(str(path))

@@ -38,6 +38,7 @@ from gyronet.errors import GyronetError
 log = logging.getLogger(__name__)
 
 INT8, INT32, REAL32 = 2, 6, 9  # MAV_PARAM_TYPE
+EXPORT_MARK = "Thermal compensation from gyronet"  # in an export's header: the only .params it replaces
 RAD_PER_DEG = np.pi / 180.0
 ARDUPILOT_TREF_C = 35.0  # AP_InertialSensor_tempcal.cpp TEMP_REFERENCE
 ARDUPILOT_SCALE = 1.0e6  # ... SCALE_FACTOR
@@ -161,7 +162,7 @@ def params_text(rows: list[tuple[str, float | int, int]], stack: str, vehicle_id
                 source: str = "") -> str:
     """QGroundControl's .params text; a float is written as the shortest text that reads back to its float32."""
     lines = [f"# Onboard parameters for Vehicle {vehicle_id}", "#", f"# Stack: {stack}",
-             f"# Thermal compensation from gyronet{': ' + source if source else ''}", "#",
+             f"# {EXPORT_MARK}{': ' + source if source else ''}", "#",
              "# Vehicle-Id Component-Id Name Value Type"]
     for name, value, kind in rows:
         text = str(int(value)) if kind != REAL32 else np.format_float_positional(np.float32(value), unique=True,
@@ -213,9 +214,9 @@ def _check_output(bundle_dir: Path, output: Path) -> None:
                            "name the parameter file F.params")
     if output.resolve().parent == bundle_dir.resolve():
         raise GyronetError(f"output={output} is inside the bundle {bundle_dir}; write the parameters elsewhere")
-    if output.exists() and output.suffix != ".params":
-        raise GyronetError(f"output={output} exists and is not a .params file, which export would replace; "
-                           "name a .params file")
+    if output.exists() and (output.suffix != ".params" or EXPORT_MARK not in output.read_text(errors="replace")[:500]):
+        raise GyronetError(f"output={output} exists and is not a parameter file gyronet exported (a vehicle's own "
+                           ".params, a recording?), which export would replace; name a new .params file")
     sidecar = output.with_suffix(".json")
     if sidecar.exists() and '"stated_error_dps"' not in sidecar.read_text(errors="replace"):
         raise GyronetError(f"{sidecar} exists and is not an export's summary, which export would replace; "

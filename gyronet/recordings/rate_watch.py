@@ -22,6 +22,7 @@ rate, so it flags the first change off the bundle's rate for good.
 from __future__ import annotations
 
 import logging
+import math
 from collections import deque
 from typing import NamedTuple
 
@@ -124,6 +125,7 @@ class RateWatch:
 
     def step(self, time_s: float) -> RateChange | None:
         """One sample's stamp: the change it completes, or None."""
+        time_s = time_s if math.isfinite(time_s) else math.nan  # +-inf is no time either: no interval, no vote
         row = self.n_rows
         self.n_rows += 1
         self._times.append(time_s)
@@ -157,6 +159,7 @@ class RateWatch:
     def scan(self, time_s: np.ndarray) -> list[RateChange]:
         """The changes in a block of stamps: what ``step`` on each would report, vectorised."""
         time_s = np.asarray(time_s, dtype=np.float64)
+        time_s = np.where(np.isfinite(time_s), time_s, np.nan)  # as step takes them
         changes: list[RateChange] = []
         pos, n, window = 0, len(time_s), 1024
         while pos < n:

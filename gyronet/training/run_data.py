@@ -14,7 +14,7 @@ from gyronet.errors import GyronetError
 from gyronet.recordings.data import REQUIRED_COLUMNS, Recording
 from gyronet.training.dataset import (
     MIN_TEMP_SPAN_C,
-    MIN_TRAIN_BLOCKS,
+    MIN_VAL_BLOCKS,
     Blocks,
     _features_by_key,
     _file_key,
@@ -125,10 +125,10 @@ def check_long_enough(runs: Sequence[Run], startup_s: float, block_s: float) -> 
     """Every run, held out, must leave blocks to score after its start-up window (``data.val_startup_s``)."""
     for run in runs:
         duration_s = float(run.time_s[-1] - run.time_s[0]) if len(run.time_s) else 0.0
-        if startup_s > 0 and duration_s < startup_s + MIN_TRAIN_BLOCKS * block_s:
+        if startup_s > 0 and duration_s < startup_s + MIN_VAL_BLOCKS * block_s:
             raise GyronetError(f"{run.path}: {duration_s:.0f} s long; held out, a run is scored after its first "
                                f"data.val_startup_s={startup_s:g} s (as deployed with startup.still_s), which leaves "
-                               f"fewer than {MIN_TRAIN_BLOCKS} blocks of {block_s:g} s: give longer runs, or "
+                               f"fewer than {MIN_VAL_BLOCKS} blocks of {block_s:g} s: give longer runs, or "
                                "data.val_startup_s=0")
 
 

@@ -27,13 +27,12 @@ from gyronet.training.ga import Individual, Param, next_generation, random_indiv
 from ._history import HISTORY_FILE, Evaluation, Generation, History, job_dir, params_key, score
 from ._space import describe, parse_search_space, tidy, to_overrides
 from ._tensorboard import SweepWriter
-from ._resume import GASweepError, lock_sweep_dir, start, too_many_failed
+from ._resume import RESULTS_FILE, GASweepError, lock_sweep_dir, start, too_many_failed
 from ._watchdog import WatchedTask
 from .config import GAOptions
 
 log = logging.getLogger(__name__)
 
-RESULTS_FILE = "optimization_results.yaml"
 
 
 # ---------------------------------------------------------------- the sweeper

@@ -6,6 +6,7 @@ generation that stopped the sweep for failures is run again, so "fix the cause a
 """
 from __future__ import annotations
 
+import errno
 import hashlib
 import logging
 import os
@@ -25,6 +26,7 @@ LOCK_FILE = ".ga_sweep.lock"
 # the options that decide which individuals are bred: another value breeds another sweep
 BREEDING = ("population_size", "tournament_size", "crossover_rate", "mutation_rate", "mutation_scale", "elitism",
             "seed", "start_from_config")
+RESULTS_FILE = "optimization_results.yaml"  # the best so far, written by _impl
 NEW_DIR = "use a new hydra.sweep.dir, or hydra.sweeper.resume=false to start over there"
 
 
@@ -42,8 +44,12 @@ def lock_sweep_dir(sweep_dir: Path) -> Optional[Any]:
     handle = open(sweep_dir / LOCK_FILE, "a+")
     try:
         fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
-    except OSError:
+    except OSError as err:
         handle.close()
+        if err.errno not in (errno.EAGAIN, errno.EWOULDBLOCK, errno.EACCES):  # a file system without locks (NFS)
+            log.warning("cannot lock %s (%s): nothing stops a second sweep in this folder", sweep_dir / LOCK_FILE,
+                        err.strerror or err)
+            return None
         raise GASweepError(f"another GA sweep is running in {sweep_dir} (it holds {sweep_dir / LOCK_FILE}); "
                            "wait for it, or use another hydra.sweep.dir") from None
     handle.seek(0)
@@ -84,13 +90,15 @@ def start(sweep_dir: Path, space_json: List[Dict[str, Any]], fixed: List[str], o
     old = _resumable(path, options)
     if old is None:  # a generation 0 that was killed, or a sweep started over: nothing of theirs is written into
         set_aside_interrupted_jobs(sweep_dir, 0, subdir)
-        curves = sweep_dir / "tb"
-        if curves.is_dir():  # the old sweep's curves, which the new one's steps would restart in
-            target, n = sweep_dir / INTERRUPTED_DIR / "tb", 1
-            while target.exists():
-                target, n = sweep_dir / INTERRUPTED_DIR / f"tb.{n}", n + 1
-            target.parent.mkdir(exist_ok=True)
-            curves.rename(target)
+        # its curves (the new steps would restart in them), and its results, which a kill before the new
+        # generation 0 is saved would otherwise resume
+        for name in ("tb", HISTORY_FILE, RESULTS_FILE, "best"):
+            if (sweep_dir / name).exists():
+                target, n = sweep_dir / INTERRUPTED_DIR / name, 1
+                while target.exists():
+                    target, n = sweep_dir / INTERRUPTED_DIR / f"{name}.{n}", n + 1
+                target.parent.mkdir(exist_ok=True)
+                (sweep_dir / name).rename(target)
         return new
     if old.search_space != space_json:
         raise GASweepError(f"{path} is a sweep over another search space ({old.search_space}); {NEW_DIR}")

@@ -32,9 +32,8 @@ class KalmanCode(NamedTuple):
 
 
 def no_kalman() -> KalmanCode:
-    """The output stage of a bundle without a Kalman stage: the compensated rate as it is."""
-    body = "    (void)s;\n    memcpy(out_dps, rate_dps, 3 * sizeof *out_dps);"
-    return KalmanCode("", body, 1, 1, 0)
+    """The output stage of a bundle without a Kalman stage: the compensated rate as it is (in ``gyronet_step``)."""
+    return KalmanCode("", "", 1, 1, 0)
 
 
 def gain_sequence(stage: Any) -> tuple[list[np.ndarray], np.ndarray]:
