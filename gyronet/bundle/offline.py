@@ -45,7 +45,8 @@ def compensated_meta(bundle_dir: str | Path, still_s: float = 0.0) -> dict[str, 
     """A compensated file's ``#`` lines: the bundle, and the start-up window (for ``allan.py``'s ``still_s``)."""
     meta: dict[str, object] = {"compensated_by": Path(bundle_dir).resolve()}
     if still_s:
-        meta[STILL_S_KEY] = repr(float(still_s))  # every digit: allan.py starts exactly where the offset did
+        still_s = float(still_s)  # every digit: allan.py starts exactly where the offset did
+        meta[STILL_S_KEY] = str(int(still_s)) if still_s.is_integer() else repr(still_s)
     return meta
 
 
