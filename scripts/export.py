@@ -2,15 +2,17 @@
 import sys
 from pathlib import Path
 
-from omegaconf import DictConfig
+from omegaconf import DictConfig, OmegaConf
 
 from gyronet.errors import ConfigError
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # scripts/_cli.py, also when this file is run by path
-from _cli import command  # noqa: E402
+from _cli import CONF_DIR, command  # noqa: E402
 
 FORMATS = ("px4", "ardupilot", "c")
 FITS = (None, "px4", "difference")
+C_ONLY = ("prefix",)
+PARAMS_ONLY = ("vehicle_id", "component_id", "grid_points", "temp_rate_c_per_s", "fit", "history")
 
 
 @command("export", "deploy", schemas={"instance": int, "device_id": int, "vehicle_id": int, "component_id": int,
@@ -28,8 +30,12 @@ def main(cfg: DictConfig) -> None:
     if cfg.format == "c" and cfg.instance:
         raise ConfigError("instance picks PX4's or ArduPilot's IMU; for C, give each IMU's compensator its own "
                           "prefix= (prefix=imu1: imu1_step, imu1_compensator.h)")
-    if cfg.format != "c" and cfg.prefix != "gyronet":
-        raise ConfigError("prefix names the C export's functions and files (format=c)")
+    defaults = OmegaConf.load(CONF_DIR / "deploy" / "export.yaml")
+    ignored = [key for key in (C_ONLY if cfg.format != "c" else PARAMS_ONLY) if cfg.get(key) != defaults.get(key)]
+    if ignored:  # an option of the other kind of export would be silently ignored
+        kind = "format=c" if cfg.format != "c" else "the .params formats (px4, ardupilot)"
+        raise ConfigError(f"{', '.join(ignored)}: {'an option' if len(ignored) == 1 else 'options'} of {kind}, "
+                          f"not of format={cfg.format}")
     if cfg.format == "c":
         try:
             from gyronet.deploy.c_export import write_c

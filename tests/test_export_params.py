@@ -201,3 +201,12 @@ def test_an_output_that_is_not_an_export_is_never_replaced_and_ids_are_checked(p
     export_params(px4_bundle, tmp_path / "x.params", "px4", device_id=2 ** 32 - 1)  # a ULog's uint32 id
     assert read_params(tmp_path / "x.params")["TC_G0_ID"] == -1  # as PX4's int32 parameter holds it
     export_params(px4_bundle, tmp_path / "x.params", "px4", device_id=1)  # its own earlier export is replaced
+
+
+def test_an_option_of_the_other_kind_of_export_is_refused_not_ignored(tmp_path):
+    for args, message in [(("format=c", "vehicle_id=3", "fit=px4"), "vehicle_id, fit: options of the .params formats"),
+                          (("format=ardupilot", "device_id=7"), "device_id is PX4's TC_G{n}_ID; format=ardupilot"),
+                          (("format=px4", "prefix=imu1"), "prefix: an option of format=c, not of format=px4")]:
+        failed = run_export(tmp_path, f"model={tmp_path}", *args, f"output={tmp_path}/x.params")
+        assert failed.returncode == 2 and message in failed.stderr, failed.stderr
+        assert len(failed.stderr.strip().splitlines()) == 1
