@@ -241,3 +241,19 @@ def test_a_rate_change_error_crosses_a_process_boundary_intact():
     error = pickle.loads(pickle.dumps(RateChangeError("F.csv: the sampling rate changes", change)))
     assert isinstance(error, RateChangeError) and str(error) == "F.csv: the sampling rate changes"
     assert error.change == change
+
+
+def test_stamps_that_stop_or_repeat_are_no_rate_and_scan_agrees_with_step():
+    """A FIFO's batch stamped once divided by zero (ZeroDivisionError from Compensator.process); a clock that
+    stops made the vectorised scan rebuild a window a row."""
+    from gyronet.recordings.rate_watch import RateWatch
+
+    time_s = np.arange(20000) * 0.01
+    time_s[3000:3010] = time_s[3000]  # a batch stamped once
+    time_s[8000:13000] = time_s[8000]  # a clock that stops for 5,000 rows
+    time_s[15000:15002] = np.inf  # two stamps that are no time, in a row
+    stepped = RateWatch(100.0)
+    by_step = [c for t in time_s.tolist() if (c := stepped.step(t)) is not None]
+    by_scan = RateWatch(100.0).scan(time_s)
+    assert [tuple(map(str, c)) for c in by_scan] == [tuple(map(str, c)) for c in by_step]
+    assert all(np.isfinite(c.new_hz) and c.new_hz > 0 for c in by_scan)

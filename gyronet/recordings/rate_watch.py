@@ -177,6 +177,7 @@ class RateWatch:
             hits = np.flatnonzero(decides | fast_hit | refine_hit)
             upto = len(block) if len(hits) == 0 else int(hits[0])
             self._commit(block[:upto], has_span[:upto], vote[:upto])
+            change = None
             if len(hits):  # the deciding row, by the scalar code
                 change = self.step(float(block[upto]))
                 # the vectorised votes and the deques agree; None: no refinement needed, or no period (stamps back)
@@ -186,6 +187,10 @@ class RateWatch:
                 upto += 1
             window = 1024 if len(hits) else 2 * window
             pos += upto
+            if len(hits) and change is None:  # stamps that stop: every next row is a hit that decides nothing,
+                tail = time_s[pos:pos + 1024]  # where the scalar code is cheaper than a window a row
+                changes += [found for found in map(self.step, tail.tolist()) if found is not None]
+                pos += len(tail)
         return changes
 
     def _block_votes(self, time_s: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
