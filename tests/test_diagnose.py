@@ -314,6 +314,21 @@ def test_the_script_writes_the_contract_files(tmp_path, short_aux):
     assert (tmp_path / "report.md").is_file()
 
 
+def test_a_column_the_loader_dropped_is_named_and_no_effect_is_not_claimed_for_it(tmp_path, short_aux):
+    """A supply column with a few NaN cells was dropped, and the report said the declared inputs explain the drift."""
+    from gyronet.recordings.data import load_recording, write_recording
+
+    recording = load_recording(short_aux)
+    columns = dict(recording.columns, vdd_v=recording.columns["vdd_v"].copy())
+    columns["vdd_v"][100:171] = np.nan
+    gappy = write_recording(tmp_path / "gappy.csv", columns, recording.meta, float_format="%.17g")
+    _diagnose(gappy, tmp_path / "run", train_cfg={"max_epochs": 300}, n_shifts=99, max_effects=1, refine_top=1,
+              refine_passes=0)
+    report = (tmp_path / "run" / "report.md").read_text()
+    assert "but not the columns the loader dropped" in report
+    assert "`vdd_v` was logged but the loader dropped it (line " in report and "71 such cell(s)" in report
+
+
 def test_the_script_reports_bad_input_in_one_line(tmp_path):
     bad = tmp_path / "bad.csv"
     bad.write_text("time_s,temp_c\n0,1\n")

@@ -146,8 +146,10 @@ def write_report(out_dir: Path, diagnosis: Mapping[str, Any], details: Mapping[s
                   "The final bundle is the baseline.", ""]
     elif not diagnosis["effects"]:
         lines += ["**No effect found.** No candidate lowered the held-out residual by more than chance and "
-                  "the multiple comparisons allow: as far as this record can tell, the declared inputs "
-                  "explain the drift. The final bundle is the baseline.", ""]
+                  "the multiple comparisons allow and held on confirmation: as far as this record can tell, the "
+                  "declared inputs explain the drift"
+                  + (", but not the columns the loader dropped (below)" if training.dropped else "")
+                  + ". The final bundle is the baseline.", ""]
     close = rivals(details["rounds"][-1]["candidates"]) if details["rounds"] else []
     if close:
         lines += [f"In the last round, `{details['rounds'][-1]['candidates'][0]['name']}` and "
@@ -195,6 +197,8 @@ def write_report(out_dir: Path, diagnosis: Mapping[str, Any], details: Mapping[s
     lines += ["## What this record can and cannot show", ""]
     lines += [f"- {note}" for note in data_notes(rows.time_s[mask], temp_blocks, int(mask.sum()), options, gap_s,
                                                  n_shifts)]
+    lines += [f"- `{name}` was logged but the loader dropped it ({why}): nothing of it was tried. Fill or cut those "
+              "rows and diagnose again." for name, why in training.dropped.items()]
     if details.get("n_blocks_outside"):
         lines.append(f"- {details['n_blocks_outside']} blocks lie outside the temperature range the networks were "
                      "trained on (the held-out time blocks reach beyond it): the screen leaves them out, since "

@@ -51,7 +51,7 @@ log = logging.getLogger(__name__)
 
 NOTE = ("several runs: trained and scored by leave-one-run-out (`runs`: the final network's folds); run-level "
         "effects (run_offset, orientation) screened against deals of the runs' pieces, within-run effects against "
-        "shifts within each run (issue #12)")
+        "shifts within each run")
 
 
 @dataclass
