@@ -267,7 +267,7 @@ def test_diagnose_accepts_several_runs(tmp_path, paper_csv, cycle_csv):
     proc = _script("diagnose.py", tmp_path, f"data.paths=[{paper_csv},{cycle_csv}]", "train.max_epochs=40")
     assert proc.returncode == 0, proc.stderr[-3000:]
     diagnosis = json.loads((tmp_path / "diagnosis.json").read_text())
-    assert diagnosis["effects"] == [] and len(diagnosis["runs"]) == 2 and "issue #12" in diagnosis["note"]
+    assert diagnosis["effects"] == [] and len(diagnosis["runs"]) == 2 and "leave-one-run-out" in diagnosis["note"]
     assert (tmp_path / "compensator" / "meta.json").is_file() and (tmp_path / "baseline" / "compensator").is_dir()
 
 
