@@ -338,7 +338,7 @@ def test_the_script_reports_bad_input_in_one_line(tmp_path):
     assert "gyro_x_dps" in proc.stderr
 
 
-def test_the_real_psim_recording_reports_what_it_can(tmp_path):
+def test_the_real_psim_recording_reports_what_it_can(tmp_path, caplog):
     source = SHARED / "data" / "real" / "psim-tvc" / "TVCtest3_7_20.csv"
     from gyronet.recordings import importers
 
@@ -352,6 +352,8 @@ def test_the_real_psim_recording_reports_what_it_can(tmp_path):
     assert diagnosis["effects"] == []
     report = (tmp_path / "out" / "report.md").read_text()
     assert "confounded" in report and "only falls" in report
+    # on the console too: an empty list here is not "nothing missing"
+    assert any(r.levelname == "WARNING" and "no effect can be shown" in r.getMessage() for r in caplog.records)
 
 
 # ---------------------------------------------------------------------------------------- slow tests

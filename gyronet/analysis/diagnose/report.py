@@ -141,6 +141,8 @@ def write_report(out_dir: Path, diagnosis: Mapping[str, Any], details: Mapping[s
               _rmse_row("final", diagnosis["final"]["val_rmse_dps"]), ""]
     n_shifts = details["rounds"][0]["n_shifts"] if details["rounds"] else options["n_shifts"]
     if not diagnosis["effects"] and 1 / (n_shifts + 1) > options["alpha"]:
+        log.warning("no effect can be shown: the record is too short for the test to pass anything at alpha = %g "
+                    "(an empty effects list here is not 'nothing missing'; %s)", options["alpha"], out_dir / "report.md")
         lines += ["**No effect can be shown.** The record is too short for the test to pass anything at alpha = "
                   f"{options['alpha']:g} (see below); the candidates' scores are listed for what they suggest. "
                   "The final bundle is the baseline.", ""]
