@@ -114,6 +114,8 @@ def write_c(bundle_dir: Path, out_dir: Path, prefix: str = PREFIX) -> dict[str, 
     from gyronet.bundle.io import load_unfrozen
 
     bundle_dir, out_dir = Path(bundle_dir), Path(out_dir)
+    if out_dir.exists() and not out_dir.is_dir():  # before the work of generating the code
+        raise ConfigError(f"output={out_dir} is a file; format=c writes two files into a folder: name one")
     compensator = Compensator.load(bundle_dir)  # every check a consumer makes, with its messages
     meta = compensator.meta
     specs, fs_hz = meta["features"], float(meta["fs_hz"])
@@ -151,8 +153,6 @@ def write_c(bundle_dir: Path, out_dir: Path, prefix: str = PREFIX) -> dict[str, 
     }
     code = "\n".join([feats.accepted, feats.power_on, model.body, bar.members_body])
     values["USES"] = "\n".join(f"#define USES_{name} {int(call in code)}" for name, call in _HELPERS.items())
-    if out_dir.exists() and not out_dir.is_dir():
-        raise ConfigError(f"output={out_dir} is a file; format=c writes two files into a folder: name one")
     out_dir.mkdir(parents=True, exist_ok=True)
     written = []
     for name in (HEADER, SOURCE):

@@ -90,10 +90,11 @@ class Recording:
                                  "remove the fs_hz line")
         return declared
 
-    def checksum(self) -> str:
-        """sha256 of the numeric content, so a bundle can name the data it was trained on."""
+    def checksum(self, names: Sequence[str] | None = None) -> str:
+        """sha256 of the numeric content (of the columns ``names`` only, if given), so a bundle can name the
+        data it was trained on."""
         digest = hashlib.sha256()
-        for name in sorted(self.columns):
+        for name in sorted(self.columns if names is None else names):
             digest.update(name.encode())
             digest.update(np.ascontiguousarray(self.columns[name], dtype=np.float64).tobytes())
         return digest.hexdigest()

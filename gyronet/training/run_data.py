@@ -1,7 +1,6 @@
 """A campaign's runs one by one (loaded, featurised, blocked), below ``runs.RunsData`` so runs.py stays short."""
 from __future__ import annotations
 
-import hashlib
 import json
 import logging
 from dataclasses import dataclass, field
@@ -80,7 +79,8 @@ def load_runs(paths: Sequence[str], specs: Sequence[dict], static_rate: Sequence
     recordings = [load_cached(str(p)) for p in paths]
     first_with: dict[str, str] = {}
     for path, rec in zip(paths, recordings):  # a copy under another name would be held out against itself
-        first = first_with.setdefault(_samples_checksum(rec), str(path))
+        # the samples every recording has: a re-export that adds or drops an auxiliary column is the same run
+        first = first_with.setdefault(rec.checksum(REQUIRED_COLUMNS), str(path))
         if first != str(path):
             raise GyronetError(f"data.paths: {path} holds the same samples as {first}; each run must be a recording "
                                "of its own (a copy would score its fold in sample)")
@@ -110,15 +110,6 @@ def load_runs(paths: Sequence[str], specs: Sequence[dict], static_rate: Sequence
                     "training and of the trained range", path, int(np.count_nonzero(~accepted)), len(accepted))
         runs.append(Run(rec, name, features[accepted], targets[accepted], index, str(path), accepted))
     return runs
-
-
-def _samples_checksum(recording: Recording) -> str:
-    """sha256 of the samples every recording has (time, temperature, gyro): a re-export that adds or drops an
-    auxiliary column is the same run."""
-    digest = hashlib.sha256()
-    for name in REQUIRED_COLUMNS:
-        digest.update(np.ascontiguousarray(recording.columns[name], dtype=np.float64).tobytes())
-    return digest.hexdigest()
 
 
 def check_long_enough(runs: Sequence[Run], startup_s: float, block_s: float) -> None:

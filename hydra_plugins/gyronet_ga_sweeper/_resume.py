@@ -17,7 +17,7 @@ from typing import Any, Dict, List, Optional
 from hydra.errors import HydraException
 
 from ._history import HISTORY_FILE, Generation, History
-from ._watchdog import INTERRUPTED_DIR, set_aside_interrupted_jobs
+from ._watchdog import set_aside, set_aside_interrupted_jobs
 from .config import GAOptions
 
 log = logging.getLogger(__name__)
@@ -67,7 +67,7 @@ def file_digests(fixed: List[str]) -> Dict[str, str]:
         value = override.partition("=")[2].strip()
         items = value[1:-1].split(",") if value.startswith("[") and value.endswith("]") else [value]
         for item in (i.strip().strip("'\"") for i in items):
-            if item and Path(item).is_file():
+            if item and Path(item).is_file():  # hashed here: gyronet.bundle.io's sha256_file would import torch
                 digest = hashlib.sha256()
                 with open(item, "rb") as f:
                     for chunk in iter(lambda: f.read(1 << 20), b""):
@@ -94,11 +94,7 @@ def start(sweep_dir: Path, space_json: List[Dict[str, Any]], fixed: List[str], o
         # generation 0 is saved would otherwise resume
         for name in ("tb", HISTORY_FILE, RESULTS_FILE, "best"):
             if (sweep_dir / name).exists():
-                target, n = sweep_dir / INTERRUPTED_DIR / name, 1
-                while target.exists():
-                    target, n = sweep_dir / INTERRUPTED_DIR / f"{name}.{n}", n + 1
-                target.parent.mkdir(exist_ok=True)
-                (sweep_dir / name).rename(target)
+                set_aside(sweep_dir / name)
         return new
     if old.search_space != space_json:
         raise GASweepError(f"{path} is a sweep over another search space ({old.search_space}); {NEW_DIR}")

@@ -71,6 +71,17 @@ JOB_NUM_SUBDIR = "${hydra.job.num}"  # Hydra's default hydra.sweep.subdir: job n
 INTERRUPTED_DIR = "interrupted"
 
 
+def set_aside(path: Path) -> Path:
+    """Move ``path`` (a file or folder in the sweep dir) to ``<sweep dir>/interrupted/``, as ``name.1``,
+    ``name.2``, ... if an earlier one is there; return where it went."""
+    target, n = path.parent / INTERRUPTED_DIR / path.name, 1
+    while target.exists():
+        target, n = path.parent / INTERRUPTED_DIR / f"{path.name}.{n}", n + 1
+    target.parent.mkdir(exist_ok=True)
+    path.rename(target)
+    return target
+
+
 def set_aside_interrupted_jobs(sweep_dir: Path, first_job: int, subdir: Optional[str]) -> List[Path]:
     """Move the folders of jobs numbered ``first_job`` and up (run by an interrupted sweep, in no
     history) to ``<sweep dir>/interrupted/``, so a resumed job does not write beside its killed
@@ -79,17 +90,8 @@ def set_aside_interrupted_jobs(sweep_dir: Path, first_job: int, subdir: Optional
     """
     if subdir != JOB_NUM_SUBDIR or not sweep_dir.is_dir():
         return []
-    moved = []
-    for folder in sorted(sweep_dir.iterdir()):
-        if folder.is_dir() and folder.name.isdigit() and int(folder.name) >= first_job:
-            target = sweep_dir / INTERRUPTED_DIR / folder.name
-            n = 1
-            while target.exists():
-                target = sweep_dir / INTERRUPTED_DIR / f"{folder.name}.{n}"
-                n += 1
-            target.parent.mkdir(exist_ok=True)
-            folder.rename(target)
-            moved.append(target)
+    moved = [set_aside(folder) for folder in sorted(sweep_dir.iterdir())
+             if folder.is_dir() and folder.name.isdigit() and int(folder.name) >= first_job]
     if moved:
         log.warning("set aside %d folder(s) of the interrupted generation's jobs in %s", len(moved),
                     sweep_dir / INTERRUPTED_DIR)
