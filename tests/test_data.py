@@ -47,8 +47,8 @@ def test_column_order_is_free(tmp_path):
 BAD_FILES = {
     "missing_column": ("time_s,temp_c,gyro_x_dps,gyro_y_dps\n0,1,2,3\n", "missing required column(s) gyro_z_dps"),
     "non_numeric": (f"{HEADER}\n0,20,1,2,3\n0.1,20,abc,2,3\n", "line 3: column 'gyro_x_dps': non-numeric value 'abc'"),
-    "nan": (f"{HEADER}\n0,20,1,2,3\n0.1,nan,1,2,3\n", "line 3: column 'temp_c': empty cell or NaN"),
-    "empty_cell": (f"{HEADER}\n0,20,1,2,3\n0.1,20,1,,3\n", "line 3: column 'gyro_y_dps': empty cell or NaN"),
+    "nan": (f"{HEADER}\n0,20,1,2,3\n0.1,nan,1,2,3\n", "line 3: column 'temp_c': missing value"),
+    "empty_cell": (f"{HEADER}\n0,20,1,2,3\n0.1,20,1,,3\n", "line 3: column 'gyro_y_dps': missing value"),
     "inf": (f"{HEADER}\n0,20,1,2,3\n0.1,20,1,2,inf\n", "line 3: column 'gyro_z_dps': infinite value"),
     "time_backwards": (f"{HEADER}\n0,20,1,2,3\n0.2,20,1,2,3\n0.1,20,1,2,3\n", "line 4: time_s 0.1 does not increase"),
     "time_repeated": (f"# fs_hz=10\n{HEADER}\n0,20,1,2,3\n0,20,1,2,3\n", "line 4: time_s 0.0 does not increase"),
@@ -255,7 +255,7 @@ def test_line_numbers_count_comment_and_blank_lines(tmp_path):
     rows = _good_rows()
     rows[6] = rows[6].replace(",0.5", ",nan")
     path.write_text("# a=1\n\n" + HEADER + "\n" + "\n".join(rows[:3]) + "\n\n\n" + "\n".join(rows[3:]) + "\n")
-    assert "line 12: column 'gyro_z_dps': empty cell or NaN" in _load_error(path)
+    assert "line 12: column 'gyro_z_dps': missing value" in _load_error(path)
 
 
 def test_auxiliary_columns_that_are_not_numbers_are_dropped_with_one_warning(tmp_path, caplog):
@@ -268,11 +268,11 @@ def test_auxiliary_columns_that_are_not_numbers_are_dropped_with_one_warning(tmp
     _check_good(rec)
     assert rec.aux_columns == ["vdd_v"] and rec.columns["vdd_v"].tolist() == [3.3] * 20
     assert set(rec.dropped) == {"notes", "spare_v", "board_temp_c"}
-    assert "line 6: empty cell" in rec.dropped["spare_v"] and "line 9: infinite" in rec.dropped["board_temp_c"]
+    assert "line 6: missing value" in rec.dropped["spare_v"] and "line 9: infinite" in rec.dropped["board_temp_c"]
     warnings = [r for r in caplog.records if r.levelname == "WARNING"]
     assert len(warnings) == 1 and all(n in warnings[0].getMessage() for n in ("notes", "spare_v", "board_temp_c"))
     # what the caller requires stays strict
-    assert "line 6: column 'spare_v': empty cell or NaN" in _load_error(path, required=(*REQUIRED_COLUMNS, "spare_v"))
+    assert "line 6: column 'spare_v': missing value" in _load_error(path, required=(*REQUIRED_COLUMNS, "spare_v"))
     assert "line 2: column 'notes': non-numeric value 'hello 0'" in _load_error(path, required=("time_s", "notes"))
 
 

@@ -103,7 +103,7 @@ def test_a_feature_column_the_loader_dropped_is_named_with_its_reason(tmp_path, 
     path.write_text("\n".join(lines) + "\n")
     features = [{"kind": "temp"}, {"kind": "column", "source": "vdd_v"}]
     message = _error(str(path), features=features)
-    assert "the features need column 'vdd_v', which is not usable (line 6: empty cell or NaN" in message
+    assert "the features need column 'vdd_v', which is not usable (line 6: missing value" in message
 
 
 def test_a_record_with_a_one_hour_break_trains(tmp_path):

@@ -31,6 +31,7 @@ log = logging.getLogger(__name__)
 # what both parsers read as NaN (pandas' defaults, passed explicitly so the text path agrees)
 NA_TOKENS = ("", "#N/A", "#N/A N/A", "#NA", "-1.#IND", "-1.#QNAN", "-NaN", "-nan", "1.#IND", "1.#QNAN",
              "<NA>", "N/A", "NA", "NULL", "NaN", "None", "n/a", "nan", "null")
+MISSING = "missing value (an empty cell, NaN, NA, n/a, null or the like)"
 # pandas < 3 parses floats to within an ulp unless asked for round trips; 3 always round-trips
 _FLOAT_OPTIONS = {"float_precision": "round_trip"} if int(pd.__version__.split(".")[0]) < 3 else {}
 
@@ -157,7 +158,7 @@ def _validate(path: Path, names: list[str], required: set[str], values: dict[str
     for name in (n for n in names if n in required):
         bad = np.flatnonzero(~np.isfinite(values[name]))
         if bad.size:
-            what = "empty cell or NaN" if np.isnan(values[name][bad[0]]) else "infinite value"
+            what = MISSING if np.isnan(values[name][bad[0]]) else "infinite value"
             raise RecordingError(f"{path}: line {numbers[bad[0]]}: column {name!r}: {what}"
                                  f" ({bad.size} such cell(s) in this column)")
     dropped: dict[str, str] = {}
@@ -167,7 +168,7 @@ def _validate(path: Path, names: list[str], required: set[str], values: dict[str
         if bad.size:
             row = int(bad[0])
             what = (f"non-numeric value {show(cells_of(row)[names.index(name)].strip(), 20)}" if text[row]
-                    else "empty cell or NaN" if np.isnan(values[name][row]) else "infinite value")
+                    else MISSING if np.isnan(values[name][row]) else "infinite value")
             dropped[name] = f"line {numbers[row]}: {what}, {bad.size} such cell(s)"
     if dropped:
         log.warning("%s: auxiliary column(s) dropped, not a finite number in every row: %s", path,
