@@ -146,6 +146,11 @@ def test_every_report_ends_with_what_to_record_next():
     assert advice_lines(items)[2].startswith("Cheapest first. **Next: ")
     tie = alternatives_advice([{"kind": "lag", "source": "temp_c", "alternatives": [{"kind": "time", "source": "t"}]}])
     assert advice_lines(items + tie)[2].startswith("What would decide between equivalent explanations first")
+    # a column against its own lag: a step of that column held past the lag, not "do not move together"
+    own = alternatives_advice([{"kind": "column", "source": "vdd_v", "params": {"tau_s": 0.0},
+                                "alternatives": [{"kind": "column", "source": "vdd_v", "params": {"tau_s": 16.0}}]}])
+    assert own[0].record == "a run where vdd_v steps and then holds for longer than 16 s, so that its lags part"
+    assert "(column of vdd_v (tau_s 16 s))" in own[0].cannot_show
 
 
 # ------------------------------------------------------------------------------ simulated campaigns

@@ -145,3 +145,28 @@ def test_a_board_die_gradient_names_the_board_column(tmp_path):
         assert "approximates a measured column" in first["evidence"] and "board_temp_c" in first["evidence"]
     report = (tmp_path / "out" / "report.md").read_text()
     assert "Equally good within the screen's own noise" in report and "`lag` of `temp_c`" in report
+
+
+class _Noisy:
+    """What ``tie_groups`` reads of a screen: two families, the second far behind with a difference
+    whose standard error is as large as itself (a warm-up's gain, all in the first spans)."""
+
+    specs = [{"kind": "time", "tau_s": 779.0}, {"kind": "column", "source": "acc_z_g", "tau_s": 2050.0}]
+    score = np.array([0.76, 0.39])
+
+    def tie_noise(self, head, rest):
+        return np.full(len(rest), 0.37)
+
+
+def test_a_candidate_far_behind_is_no_equal_however_noisy_the_difference():
+    assert tie_groups(_Noisy(), np.array([0, 1])) == [[0], [1]]
+    assert tie_groups(_Noisy(), np.array([0, 1]), max_shortfall=1.0) == [[0, 1]]  # the noise alone would tie them
+
+
+def test_the_screen_counts_the_held_out_blocks_it_scored():
+    # a separate validation recording: the training record's rows (fold -1) are fitted on, never scored
+    basis, target, copies, _ = _arrays(0)
+    fold = np.where(np.arange(N_BLOCKS) < 400, -1, 0)
+    result = screen(basis, target, copies, fold, (fold >= 0).astype(int), ["a", "b"], [LAG_T, BOARD_LAG],
+                    n_shifts=5, span_rows=10)
+    assert result.n_rows == N_BLOCKS - 400

@@ -111,10 +111,15 @@ def alternatives_advice(effects: Sequence[Mapping[str, Any]]) -> list[Advice]:
             continue
         sources = {effect["source"], *(a["source"] for a in alternatives)}
         kinds = {effect["kind"], *(a["kind"] for a in alternatives)}
-        names = ", ".join(f"{a['kind']} of {a['source']}" for a in alternatives)
-        what = f"whether the {effect['kind']} of {effect['source']} or its equivalents ({names}) is the cause"
+        names = ", ".join(_named(a) for a in alternatives)
+        what = f"whether the {_named(effect)} or its equivalents ({names}) is the cause"
         if "time" in kinds:
             record = "another thermal history, so that time and temperature part"
+        elif len(sources) == 1:  # one column's shapes: as it is, lagged, with hysteresis
+            longest_s = max(float((x.get("params") or {}).get("tau_s") or 0.0) for x in (effect, *alternatives))
+            record = (f"a run where {effect['source']} steps and then holds for longer than {longest_s:g} s, "
+                      "so that its lags part" if longest_s > 0 else
+                      f"a run where {effect['source']} turns up and down more often, so that its shapes part")
         elif len(sources - {"temp_c"}) and "temp_c" in sources:
             record = (f"a run where {', '.join(sorted(sources - {'temp_c'}))} and the temperature part (a change "
                       "of supply, load or humidity at constant chamber temperature)")
@@ -122,6 +127,12 @@ def alternatives_advice(effects: Sequence[Mapping[str, Any]]) -> list[Advice]:
             record = f"a run where {', '.join(sorted(sources))} do not move together"
         out.append(Advice("run", what, record, decides=True))
     return out
+
+
+def _named(effect: Mapping[str, Any]) -> str:
+    """``column of vdd_v (tau_s 16 s)``: an effect or alternative as the advice names it."""
+    tau_s = float((effect.get("params") or {}).get("tau_s") or 0.0)
+    return f"{effect['kind']} of {effect['source']}" + (f" (tau_s {tau_s:g} s)" if tau_s else "")
 
 
 def orientation_label(acc_g: np.ndarray) -> str:

@@ -10,8 +10,8 @@ columns' lags (60, 300, 1200, 3600 s) are a coarser grid than the temperature's.
 
 **Equivalent explanations.** Families whose refined score is within the screen's own noise of
 the best family's (``tie_z`` standard errors of their paired difference on the same held-out
-blocks, clustered by span, :mod:`.ties`; or less than 1 % of the best score) explain the
-held-out residual equally well. Of such a group the simplest is tried first, and of equal
+blocks, clustered by span, :mod:`.ties`; or less than 1 % of the best score), and short of it
+by no more than a fifth, explain the held-out residual equally well. Of such a group the simplest is tried first, and of equal
 freedom a measured one (``complexity``: a recording column as it is, ageing or a warm-up; then a
 recording column through a lag; then what is derived from the temperature, a lag of ``temp_c``
 last) and the others are its ``alternatives``.
@@ -117,7 +117,8 @@ def alternative(spec: Mapping[str, Any], score: float) -> dict[str, Any]:
             "score": float(score)}
 
 
-def tie_groups(result: ScreenResult, passing: np.ndarray, tie_z: float = 2.0, rel_tol: float = 0.01) -> list[list[int]]:
+def tie_groups(result: ScreenResult, passing: np.ndarray, tie_z: float = 2.0, rel_tol: float = 0.01,
+               max_shortfall: float = 0.2) -> list[list[int]]:
     """The passing families' best rows, grouped by equivalence, best group first; each group sorted
     measured and simplest first (``complexity``).
 
@@ -127,7 +128,11 @@ def tie_groups(result: ScreenResult, passing: np.ndarray, tie_z: float = 2.0, re
     one signal differ consistently by a hair, which the paired error alone would call apart. (The
     median best score under the circular shifts, what chance alone gives, was tried as the floor
     instead: on slow residuals it reached 10 % of the best and made hours-since-start the equal
-    of a 5000 s warm-up that it is not on another history.)
+    of a 5000 s warm-up that it is not on another history.) Nor is a family that falls short of
+    the best by more than ``max_shortfall`` of its score an equal, whatever the noise: a
+    difference that lives in a few spans (a warm-up's first half hour) has a standard error as
+    large as itself, and a 2050 s lag of ``acc_z_g`` scoring 0.39 was listed as the equal of a
+    warm-up scoring 0.76 (near-copies come within 3 %).
     """
     best_of_family: dict[tuple, int] = {}
     for i in passing:  # best score first
@@ -138,7 +143,8 @@ def tie_groups(result: ScreenResult, passing: np.ndarray, tie_z: float = 2.0, re
         head, rest = left[0], np.array(left[1:], dtype=int)
         noise = result.tie_noise(head, rest) if len(rest) else np.zeros(0)
         within = np.maximum(tie_z * noise, rel_tol * result.score[head])
-        tied = [int(j) for j, w in zip(rest, within) if result.score[head] - result.score[j] <= w]
+        tied = [int(j) for j, w in zip(rest, within) if result.score[head] - result.score[j] <= w
+                and result.score[j] >= (1.0 - max_shortfall) * result.score[head]]
         group = sorted([head, *tied], key=lambda j: (complexity(result.specs[j]), -result.score[j]))
         groups.append(group)
         left = [j for j in left if j not in group]

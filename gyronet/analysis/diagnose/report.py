@@ -82,11 +82,12 @@ def evidence(spec: Mapping[str, Any], score: float, rmse_after: np.ndarray, inde
     refined = "" if feature_name(spec) == result.names[index] else f" (refined from {result.names[index]})"
     held_out = ("a separate recording" if result.n_folds == 1
                 else f"{result.n_folds}-fold cross-validation over time spans")
-    return (f"Adding {describe(spec)}{refined} cut the held-out 60 s residual ({held_out}, {result.n_rows} blocks) "
-            f"from {before} to {after} deg/s, score {score:.3g} >= {min_gain:g}; the best of all {len(result.names)} "
-            f"candidates did as well in {beaten} of {len(result.null_max)} circular time shifts (family-wise "
-            f"p = {result.p_value[index]:.3g} <= {alpha:g}); retrained with it, the network's own held-out "
-            f"residual confirms it (score {confirmed:.3g} >= {confirm_gain:g}).")
+    return (f"Added to the network's frozen regressors (its output layer refitted), {describe(spec)}{refined} cut "
+            f"the held-out 60 s residual ({held_out}, {result.n_rows} blocks) from {before} to {after} deg/s, "
+            f"score {score:.3g} >= {min_gain:g}; the best of all {len(result.names)} candidates did as well in "
+            f"{beaten} of {len(result.null_max)} circular time shifts (family-wise p = {result.p_value[index]:.3g} "
+            f"<= {alpha:g}); the network retrained with it confirms it on its own held-out residual (the table "
+            f"below: score {confirmed:.3g} >= {confirm_gain:g}).")
 
 
 def approximation_sentence(spec: Mapping[str, Any], score: float, approximations: Sequence[Mapping[str, Any]]) -> str:

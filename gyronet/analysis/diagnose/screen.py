@@ -94,7 +94,7 @@ class ScreenResult:
     null_max: np.ndarray  # (n_shifts,): best score over all candidates at each shift
     rmse_before: np.ndarray  # (3,): held-out RMS of the 60 s residual, deg/s
     rmse_after: np.ndarray  # (m, 3): the same with each candidate
-    n_rows: int
+    n_rows: int  # held-out 60 s blocks scored
     n_folds: int
     ridge: float
     fold_score: np.ndarray | None = None  # (m, k): the score on each held-out fold alone
@@ -186,7 +186,7 @@ def screen(basis: np.ndarray, target: np.ndarray, candidates: np.ndarray, fold: 
     n_test = int(sum(f.test.sum() for f in folds))
     return ScreenResult(list(names), [dict(s) for s in specs], gain, score, p_value, axis_p, null_max,
                         np.sqrt(sse0 / n_test), np.sqrt(np.clip(sse1, 0, None) / n_test),
-                        len(target), len(folds), ridge, fold_score, cv_sse_by_row(folds, target, cand),
+                        n_test, len(folds), ridge, fold_score, cv_sse_by_row(folds, target, cand),
                         span_labels(fold, recording, span_rows))
 
 
