@@ -93,6 +93,11 @@ def test_the_startup_offset_removes_a_turn_on_bias_and_its_window_is_not_scored(
     # every row, raw included, is scored from the window's end: raw is not offset, only cut
     cut = table_rows(biased_csv, {}, score_from_s=600)
     assert started["Raw"] == cut["Raw"] and started["Raw"] != plain["Raw"]
+    # what the offset alone does is a row of its own: the bar a model must clear as deployed
+    assert "Raw, start-up offset" in started and "Raw, start-up offset" not in plain
+    alone = started["Raw, start-up offset"]["ratio_to_floor"]
+    assert max(alone) < max(started["Raw"]["ratio_to_floor"])
+    assert all(g < a for g, a in zip(started["gyronet"]["ratio_to_floor"], alone))
     with pytest.raises(GyronetError, match="nothing left to score"):
         table_rows(biased_csv, {}, score_from_s=1e6)
 

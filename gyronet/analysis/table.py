@@ -52,7 +52,8 @@ def table_rows(input_path: str | Path, bundles: Mapping[str, str | Path], startu
 
     The floor is the simulator's noise where it wrote the truth, else the recording's own (the
     Allan deviation at 60 s in its cold dwell, ``gyronet.analysis.campaign``: a real run). ``startup``:
-    ``Compensator.use_startup`` options (every bundle gets the run's offset); rows are scored from
+    ``Compensator.use_startup`` options (every bundle gets the run's offset, and a row "Raw, start-up
+    offset" what the offset alone does, the bar any model must clear); rows are scored from
     ``max(score_from_s, startup.still_s)`` on, so the window that measures the offset is left out.
     """
     recording = load_recording(input_path)
@@ -73,6 +74,11 @@ def table_rows(input_path: str | Path, bundles: Mapping[str, str | Path], startu
         return figures
 
     rows = {"Raw": row(recording.gyro_dps, np.zeros_like(recording.gyro_dps))}
+    if startup.get("still_s"):
+        window = recording.time_s < recording.time_s[0] + float(startup["still_s"])
+        static_dps = np.asarray(startup.get("static_rate_dps") or (0.0, 0.0, 0.0), dtype=np.float64)
+        offset_dps = recording.gyro_dps[window].mean(0) - static_dps
+        rows["Raw, start-up offset"] = row(recording.gyro_dps - offset_dps, np.broadcast_to(offset_dps, recording.gyro_dps.shape))
     if truth is not None:
         noise = np.column_stack([truth[f"noise_{a}_dps"] for a in AXES])
         rows["Noise only (truth)"] = _row(recording.time_s[keep], noise[keep], None)
