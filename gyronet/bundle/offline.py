@@ -92,7 +92,8 @@ def compensate_file(bundle_dir: str | Path, input_path: str | Path, output_path:
     compensator = Compensator.load(bundle_dir)
     compensator.use_startup(**dict(startup or {}))
     if compensator.error_bar is not None:
-        log.info(compensator.error_bar.trust_line())
+        bar = compensator.error_bar
+        (log.warning if bar.narrow_axes() else log.info)(bar.trust_line())
     recording = load_recording(input_path)
     out = compensate_as_deployed(compensator, recording, resample)
     still_s = 0.0 if compensator.startup is None else compensator.startup.still_s

@@ -21,6 +21,7 @@ A bundle without an error bar (trained before it existed) gives NaN.
 """
 from __future__ import annotations
 
+import copy
 import logging
 import math
 from typing import Any, Mapping, Sequence
@@ -34,14 +35,14 @@ from gyronet.model.torchscript import quiet_torchscript
 log = logging.getLogger(__name__)
 
 BLOCK_S = 60.0  # the contract's residual block: what the bar is calibrated on
-# Rows per model call on a long batch, for the bundle's model (gyronet.bundle.compensator) and the bar's
-# members alike: the intermediates of 8 k rows stay in cache, which makes a whole recording several times
-# faster than one call on all of it (scripts/bench.py); 64 k rows did as well for one start's 12 Gaussians,
-# and 13-23 % worse than 8 k for the mixed default and its bar.
+# Rows per model call on a long batch, for the bundle's model (gyronet.bundle.compensator) and the bar's members
+# alike: 8 k rows' intermediates stay in cache, several times faster on a whole recording than one call (bench.py);
+# 64 k rows did as well for one start's 12 Gaussians, and 13-23 % worse than 8 k for the mixed default and its bar.
 CHUNK_ROWS = 8192
 EDGE_FRACTION = 0.1  # the share of the box's width at each edge where the edge slopes are taken
 META_KEY = "error_bar"
 FORMAT = 1
+CROSS_CHECK_LOW = 0.60  # a campaign's held-out runs with fewer blocks within 1 sigma: the bar is too narrow
 _MEMBER_STATE = ("x_mean", "x_std", "z_low", "z_high", "y_mean", "y_std", "centers", "raw_width",
                  "head.weight", "head.bias", "linear.weight", "poly.weight")
 
@@ -91,8 +92,6 @@ class ErrorBar:
     def member_drift(self, features: np.ndarray) -> np.ndarray:
         """Every member's drift, (n, n_members, 3), deg/s (TorchScript, frozen, in chunks as the drift is)."""
         if self._scripted is None:
-            import copy
-
             with quiet_torchscript():
                 self._scripted = torch.jit.freeze(torch.jit.script(copy.deepcopy(self.members)))
         features = np.ascontiguousarray(features, dtype=np.float64)
@@ -150,15 +149,20 @@ class ErrorBar:
 
     def trust_line(self) -> str:
         """What the bar rests on, one line for a deployment's log: how far to trust ``drift_sigma``."""
-        calibration = self.calibration
-        blocks = f"{calibration.get('n_blocks', 0)} {BLOCK_S:g} s blocks"
-        runs, cross = calibration.get("held_out"), calibration.get("cross_within_1_sigma")
+        blocks = f"{self.calibration.get('n_blocks', 0)} {BLOCK_S:g} s blocks"
+        runs, cross, narrow = self.calibration.get("held_out"), self.calibration.get("cross_within_1_sigma"), self.narrow_axes()
         if runs:
             checked = "" if not cross else ("; each run's blocks within a bar fitted on the other runs: " + "/".join(
-                f"{v:.0%}" for v in cross) + " (x/y/z; goal 60-76 %)")
+                f"{v:.0%}" for v in cross) + " (x/y/z; goal 60-76 %)" + (f": too narrow on {', '.join(narrow)}, "
+                                                                        "expect larger errors on a next run" if narrow else ""))
             return f"drift_sigma: calibrated on {blocks} of {len(runs)} runs, each held out in turn{checked}"
         return (f"drift_sigma: calibrated on {blocks} held out of one recording; on a real sensor's next run the "
                 "error was 3-15x it (docs/results/error-bars.md): a campaign (data.paths) calibrates it across runs")
+
+    def narrow_axes(self) -> list[str]:
+        """The axes a campaign's cross-check found too narrow (under ``CROSS_CHECK_LOW`` of blocks within 1 sigma)."""
+        cross = self.calibration.get("cross_within_1_sigma") or ()
+        return [axis for axis, share in zip("xyz", cross) if share < CROSS_CHECK_LOW]
 
     # -- meta.json ----------------------------------------------------------------------------------
 

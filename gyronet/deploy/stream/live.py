@@ -111,7 +111,8 @@ def run_stream(bundle_dir: str | Path, port: str, output: str | Path, protocol: 
     compensator.use_small_chunks()  # a lone frame in plain floats, not ~30 TorchScript ops
     compensator.use_startup(**dict(startup or {}))
     if compensator.error_bar is not None:
-        log.info(compensator.error_bar.trust_line())
+        bar = compensator.error_bar
+        (log.warning if bar.narrow_axes() else log.info)(bar.trust_line())
     compensator.reset()
     check = SampleCheck(**dict(clock or {}))
     parser = make_parser(protocol, layout, required=compensator.input_columns, check=check)
