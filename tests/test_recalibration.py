@@ -15,7 +15,7 @@ ROOT = Path(__file__).resolve().parents[1]
 DRIFT_DPS = 0.005  # the drift error's standard deviation on a 60 s mean, and the bar that describes it
 
 
-def _still(hours: float = 6.0, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+def _still(hours: float = 6.0, seed: int = 0, noise_dps: float = 0.01) -> tuple[np.ndarray, np.ndarray]:
     """A 1 Hz still record's compensated rate: a drift error that wanders (AR(1) over 60 s blocks, std
     ``DRIFT_DPS``) plus white noise of 1.3 mdps on a 60 s mean."""
     rng = np.random.default_rng(seed)
@@ -25,7 +25,7 @@ def _still(hours: float = 6.0, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
     for b in range(1, n_blocks):
         drift[b] = 0.5 * drift[b - 1] + rng.normal(0.0, DRIFT_DPS * np.sqrt(1 - 0.25), 3)
     time_s = np.arange(60.0 * n_blocks)
-    return time_s, np.repeat(drift, 60, axis=0) + rng.normal(0.0, 0.01, (len(time_s), 3))
+    return time_s, np.repeat(drift, 60, axis=0) + rng.normal(0.0, noise_dps, (len(time_s), 3))
 
 
 def test_a_bar_that_describes_the_error_holds_and_one_three_times_too_narrow_asks_for_recalibration():
@@ -46,6 +46,25 @@ def test_a_bar_that_describes_the_error_holds_and_one_three_times_too_narrow_ask
     assert " s after the record's start its 60 s means are " in summary_line("y", narrow["y"])
     at_limit = {**narrow["y"], "worst_hour_rms_ratio": HOUR_RMS_LIMIT + 0.004, "recalibrate": True}
     assert f"are {HOUR_RMS_LIMIT + 0.004:g}x the bar" in summary_line("y", at_limit)  # not "2.00x (limit 2)"
+
+
+def test_a_low_pass_after_the_network_leaves_the_verdict_as_it_was():
+    """The Kalman stage (or a sensor's own filter) thins first differences, not a 60 s mean's noise (measured from
+    them, this record asked for recalibration at 2.3-2.4x)."""
+    from scipy.signal import lfilter
+
+    rng = np.random.default_rng(3)
+    time_s, drift = _still(hours=3.0, noise_dps=0.0)
+    fast_s = np.arange(10 * len(time_s)) / 10.0  # 10 Hz, the same wander
+    drift = np.repeat(drift, 10, axis=0)
+    white = rng.normal(0.0, 0.01 * np.sqrt(600), drift.shape)  # 10 mdps on a 60 s mean: twice the drift's bar
+    alpha = np.exp(-0.1 / 0.5)  # a 0.5 s first-order low-pass, as kalman=ar's
+    filtered = drift + lfilter([1 - alpha], [1, -alpha], white, axis=0)
+    sigma = np.full_like(drift, DRIFT_DPS)
+    plain, smooth = check(fast_s, drift + white, sigma), check(fast_s, filtered, sigma)
+    for axis in "xyz":
+        assert not smooth[axis]["recalibrate"]
+        assert smooth[axis]["worst_hour_rms_ratio"] == pytest.approx(plain[axis]["worst_hour_rms_ratio"], rel=0.1)
 
 
 def test_one_bad_hour_is_found_and_the_startup_window_is_skipped():

@@ -13,6 +13,12 @@ is wrong, 2.34-8.91 (the real tag's next run on a one-run bar, 6 axes) and 3.16 
 beyond the trained temperatures). Counting blocks beyond 2 sigma instead (three in a row, or one in
 ten over an hour) flagged 13 of the 18 calibrated axes: a drift error wanders slowly, so its blocks
 leave the bar together.
+
+The white noise of a 60 s mean, added to the bar, is measured from consecutive 10 s means within
+each block (their Allan variance at 10 s, scaled to 60 s), not from first differences: a low-pass
+(the Kalman stage, a sensor's own filter) thins first differences several times over but leaves a
+60 s mean's noise as it was, and on `kalman=ar` output the first differences called a bar that
+holds 2.2-4.1x too narrow. A record too slow for two samples in 10 s falls back to them.
 """
 from __future__ import annotations
 
@@ -24,6 +30,7 @@ from gyronet.model.error_bar import BLOCK_S
 from gyronet.recordings.data import AXES
 
 HOUR_S = 3600.0
+SUB_S = 10.0  # the sub-blocks whose consecutive means measure a block mean's white noise
 HOUR_RMS_LIMIT = 2.0  # an hour's RMS of (block mean / its bar) above this: recalibrate
 CALIBRATED_QUANTILES = (0.05, 0.95)  # the range a calibrated bar's share falls in on 90 % of runs
 
@@ -84,25 +91,80 @@ def check(time_s: np.ndarray, rate_dps: np.ndarray, sigma_dps: np.ndarray, outsi
     starts = np.flatnonzero(np.concatenate([[True], index[1:] != index[:-1]]))
     counts = np.diff(np.append(starts, len(index)))
     means = np.add.reduceat(np.column_stack([rate, sigma_dps[keep], flags]), starts, axis=0) / counts[:, None]
+    subs = SubMeans(block_s)
+    subs.add(((since_s - still_s) // SUB_S).astype(np.int64), rate)
+    subs.close()
     return judge_blocks(still_s + block_s * index[starts], means, counts, np.mean(np.diff(rate, axis=0) ** 2, axis=0),
-                        block_s, ranges=True)
+                        block_s, ranges=True, sub_avar=subs.avar())
+
+
+class SubMeans:
+    """Consecutive ``SUB_S`` means within each block, the squares of their differences summed as they close."""
+
+    def __init__(self, block_s: float = BLOCK_S):
+        self.per_block = max(1, int(round(block_s / SUB_S)))
+        self.index, self.sums, self.count = None, [0.0, 0.0, 0.0], 0
+        self.previous: tuple | None = None  # the last closed sub-block: (index, mean, samples)
+        self.squares, self.pairs = [0.0, 0.0, 0.0], 0
+
+    def add_row(self, index: int, rate_dps: list) -> None:
+        """One sample of sub-block ``index`` (since the blocks' start, in ``SUB_S``), in plain floats."""
+        if index != self.index:
+            self.close()
+            self.index = index
+        self.sums = [total + v for total, v in zip(self.sums, rate_dps)]
+        self.count += 1
+
+    def add(self, index: np.ndarray, rate_dps: np.ndarray) -> None:
+        """Samples (n,) and (n, 3) in time order: ``add_row`` on each, to rounding."""
+        if not len(index):
+            return
+        starts = np.flatnonzero(np.concatenate([[True], index[1:] != index[:-1]]))
+        counts = np.diff(np.append(starts, len(index)))
+        for sub, total, count in zip(index[starts].tolist(), np.add.reduceat(rate_dps, starts, axis=0).tolist(),
+                                     counts.tolist()):
+            if sub != self.index:
+                self.close()
+                self.index = sub
+            self.sums = [a + b for a, b in zip(self.sums, total)]
+            self.count += count
+
+    def close(self) -> None:
+        """End the open sub-block; pair it with the one before when both lie in one block, side by side, and
+        each holds half the samples of the other at least."""
+        if self.count:
+            mean = [v / self.count for v in self.sums]
+            last = self.previous
+            if (last is not None and last[0] + 1 == self.index and last[0] // self.per_block == self.index // self.per_block
+                    and 2 * min(last[2], self.count) >= max(last[2], self.count)):
+                self.squares = [s + (a - b) ** 2 for s, a, b in zip(self.squares, mean, last[1])]
+                self.pairs += 1
+            self.previous = (self.index, mean, self.count)
+        self.index, self.sums, self.count = None, [0.0, 0.0, 0.0], 0
+
+    def avar(self) -> np.ndarray | None:
+        """The Allan variance at ``SUB_S`` per axis (3,), deg^2/s^2, from the pairs so far; None without one."""
+        return 0.5 * np.asarray(self.squares) / self.pairs if self.pairs else None
 
 
 def judge_blocks(start_s: np.ndarray, means: np.ndarray, counts: np.ndarray, mean_step_sq: np.ndarray,
-                 block_s: float = BLOCK_S, ranges: bool = False) -> dict[str, dict[str, Any]]:
+                 block_s: float = BLOCK_S, ranges: bool = False, sub_avar: np.ndarray | None = None
+                 ) -> dict[str, dict[str, Any]]:
     """:func:`judge` on the blocks that hold half the samples of a full one (the median), {} under two.
 
     ``means`` (m, 7): each block's mean rate (3), bar (3) and share outside the trained temperatures;
-    ``counts`` (m,) its samples; ``mean_step_sq`` (3,) the mean squared first difference of the rate,
-    from which a full block mean's white noise is half of it over a full block's samples.
+    ``counts`` (m,) its samples. A full block mean's white noise is ``sub_avar`` (3,), the Allan
+    variance at ``SUB_S`` (:class:`SubMeans`), times ``SUB_S / block_s``; without it, half
+    ``mean_step_sq`` (3,), the rate's mean squared first difference, over a full block's samples.
     """
     full_count = float(np.median(counts))
     full = counts >= 0.5 * full_count
     if full.sum() < 2:
         return {}
     start_s, means = start_s[full], means[full]
-    return judge(start_s, start_s[-1] + block_s, means[:, :3], means[:, 3:6], means[:, 6] > 0,
-                 0.5 * np.asarray(mean_step_sq) / full_count, ranges)
+    noise_var = (0.5 * np.asarray(mean_step_sq) / full_count if sub_avar is None
+                 else np.asarray(sub_avar) * SUB_S / block_s)
+    return judge(start_s, start_s[-1] + block_s, means[:, :3], means[:, 3:6], means[:, 6] > 0, noise_var, ranges)
 
 
 def judge(start_s: np.ndarray, end_s: float, rate_dps: np.ndarray, sigma_dps: np.ndarray, outside: np.ndarray,
@@ -151,4 +213,4 @@ def summary_line(axis: str, result: dict[str, Any]) -> str:
             f"{result['within_2_sigma']:.0%} within 2 (where the bar holds: about 68 and 95 %{luck}){outside}")
 
 
-__all__ = ["HOUR_RMS_LIMIT", "calibrated_range", "check", "judge", "judge_blocks", "summary_line"]
+__all__ = ["HOUR_RMS_LIMIT", "SUB_S", "SubMeans", "calibrated_range", "check", "judge", "judge_blocks", "summary_line"]

@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 
 from gyronet.model.error_bar import BLOCK_S
-from gyronet.model.recalibration import HOUR_S, judge_blocks, summary_line
+from gyronet.model.recalibration import HOUR_S, SUB_S, SubMeans, judge_blocks, summary_line
 from gyronet.recordings.data import AXES
 
 log = logging.getLogger(__name__)
@@ -45,6 +45,7 @@ class LiveRecalibration:
         self._count = 0
         self._previous: list | None = None  # the last rate, for the white noise's first differences
         self._diff_sq, self._n_diff = [0.0, 0.0, 0.0], 0
+        self._subs = SubMeans(block_s)  # a block mean's white noise, from its 10 s means
         self._blocks = np.empty((64, 9))  # per block: start s, mean rate (3), sigma (3) and outside share, samples
         self._n = 0
         self.last: dict[str, dict[str, Any]] = {}
@@ -58,6 +59,7 @@ class LiveRecalibration:
         self._last_s = time_s
         if time_s < self._grid_s:
             return
+        self._subs.add_row(int((time_s - self._grid_s) // SUB_S), rate_dps)
         block = int((time_s - self._grid_s) // self.block_s)
         if block != self._block:
             if self._close():
@@ -88,6 +90,7 @@ class LiveRecalibration:
         self._diff_sq = (np.asarray(self._diff_sq) + np.sum(steps ** 2, axis=0)).tolist()
         self._n_diff += len(steps) - (self._previous is None)
         self._previous = rate_dps[-1].tolist()
+        self._subs.add(((time_s - self._grid_s) // SUB_S).astype(np.int64), rate_dps)
         index = ((time_s - self._grid_s) // self.block_s).astype(np.int64)
         starts = np.flatnonzero(np.concatenate([[True], index[1:] != index[:-1]]))
         sums, counts = np.add.reduceat(rows, starts, axis=0), np.diff(np.append(starts, len(index)))
@@ -109,6 +112,8 @@ class LiveRecalibration:
             self._judge()
         self._shift_s = self._last_s + self.block_s - next_time_s  # a block's break, then the new clock
         self._grid_s, self._block, self._previous = None, -1, None
+        self._subs.close()
+        self._subs.previous = None  # no pair across the break
 
     def _begin(self, time_s: float) -> None:
         """The first sample of a clock: the start-up window runs from it."""
@@ -118,6 +123,7 @@ class LiveRecalibration:
 
     def finish(self) -> dict[str, dict[str, Any]]:
         """Judge the last full block too, log one line per axis, and return the figures (empty under two blocks)."""
+        self._subs.close()
         if self._close():
             self._judge()
         for axis, result in self.last.items():
@@ -143,7 +149,7 @@ class LiveRecalibration:
         blocks = self._blocks[:self._n]
         since_s = blocks[:, 0] - self._origin_s
         judged = judge_blocks(since_s, blocks[:, 1:8], blocks[:, 8], np.asarray(self._diff_sq) / self._n_diff,
-                              self.block_s)
+                              self.block_s, sub_avar=self._subs.avar())
         if not judged:
             return
         self.last = judged
