@@ -216,12 +216,18 @@ def test_run_stream_stops_on_max_samples_and_ctrl_c(bundle, tmp_path, monkeypatc
 # --- issue 10: restarted clocks, re-sent headers, signals, missing ports, a full disk ---------
 
 def feeding(chunks):
-    """A ``read_chunks`` stand-in that feeds scripted bytes through the real parser, one read a chunk."""
+    """A ``read_chunks`` stand-in that feeds scripted bytes through the real parser, one read a chunk
+    (None: the port lost and reopened, as the reader tells the parser's check)."""
+    from gyronet.deploy.stream import Fault
 
     def scripted(port, parser, *, should_stop, **kwargs):
         for chunk in chunks:
             if should_stop():
                 return
+            if chunk is None:
+                yield [Fault("port_lost"), *parser.flush()]
+                parser.check.reopened()
+                continue
             items = parser.feed(chunk)
             if items:
                 yield items
@@ -236,12 +242,14 @@ def csv_stream(rows: dict[str, np.ndarray], names: list[str]) -> list[bytes]:
     return [encode_csv_line({c: float(rows[c][i]) for c in names}, names) for i in range(len(rows["time_s"]))]
 
 
-def offline(bundle, columns: dict[str, np.ndarray]):
-    """``compensate_recording`` on these samples, from a fresh state."""
+def offline(bundle, columns: dict[str, np.ndarray], startup: dict | None = None):
+    """``compensate_recording`` on these samples, from a fresh state (with ``startup``'s offset if given)."""
     from gyronet.recordings.data import Recording
     from gyronet.bundle.offline import compensate_recording
 
-    return compensate_recording(Compensator.load(bundle), Recording(columns, {}, "good samples"))
+    compensator = Compensator.load(bundle)
+    compensator.use_startup(**(startup or {}))
+    return compensate_recording(compensator, Recording(columns, {}, "good samples"))
 
 
 def test_replugged_sensor_with_its_clock_restarted_loses_no_sample(bundle, paper_csv, tmp_path, monkeypatch):
@@ -253,16 +261,39 @@ def test_replugged_sensor_with_its_clock_restarted_loses_no_sample(bundle, paper
     first = {c: v[:800] for c, v in recording.columns.items()}
     second = {c: v[800:].copy() for c, v in recording.columns.items()}
     second["time_s"] = second["time_s"] - second["time_s"][0] + 0.25  # its clock starts again near 0
-    lines = csv_stream(first, names) + csv_stream(second, names)
-    monkeypatch.setattr(live, "read_chunks", feeding([encode_csv_header(names), *lines]))
+    monkeypatch.setattr(live, "read_chunks", feeding([encode_csv_header(names), *csv_stream(first, names), None,
+                                                      *csv_stream(second, names)]))
     summary = live.run_stream(bundle, "sensor", tmp_path / "live.csv", protocol="csv", allan_every_s=0,
                               reconnect={"wait_at_start": True})
-    assert summary["n_samples"] == 1200 and summary["faults"] == {} and summary["clock_restarts"] == 1
+    assert summary["n_samples"] == 1200 and summary["faults"] == {"port_lost": 1} and summary["clock_restarts"] == 1
     output = read_output(tmp_path / "live.csv")
     # each segment as offline from a fresh state: the compensator restarted with the sensor
     for rows, part in ((slice(0, 800), first), (slice(800, 1200), second)):
         assert_matches_offline(output.iloc[rows].reset_index(drop=True), part["time_s"], part["temp_c"],
                                offline(bundle, part))
+
+
+def test_one_corrupted_stamp_costs_its_sample_not_a_new_start_up_window(bundle, paper_csv, tmp_path, monkeypatch):
+    """A stamp corrupted 90 s back was a clock restart: the start-up window began again and closed on the
+    next good sample, one sample's noise subtracted from every later row for good (a review's find)."""
+    import gyronet.deploy.stream.live as live
+    from gyronet.deploy.stream import encode_csv_header, encode_csv_line
+
+    recording = load_recording(paper_csv).slice(slice(0, 1500))
+    names = list(recording.columns)
+    lines = csv_stream(recording.columns, names)
+    corrupted = {c: float(recording.columns[c][700]) for c in names}
+    corrupted["time_s"] -= 90.0
+    lines[700] = encode_csv_line(corrupted, names)
+    monkeypatch.setattr(live, "read_chunks", feeding([encode_csv_header(names), *lines]))
+    startup = {"still_s": 60.0, "motion_dps": 5.0}
+    summary = live.run_stream(bundle, "sensor", tmp_path / "live.csv", protocol="csv", allan_every_s=0,
+                              reconnect={"wait_at_start": True}, startup=startup)
+    assert summary["faults"] == {"time_jump": 1} and summary["clock_restarts"] == 0 and summary["n_samples"] == 1499
+    output = read_output(tmp_path / "live.csv")
+    kept = np.arange(1500) != 700
+    part = {c: v[kept] for c, v in recording.columns.items()}
+    assert_matches_offline(output, part["time_s"], part["temp_c"], offline(bundle, part, startup=startup))
 
 
 def test_resent_header_without_a_needed_column_does_not_stop_the_stream(bundle, paper_csv, tmp_path, monkeypatch):

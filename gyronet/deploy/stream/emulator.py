@@ -21,6 +21,9 @@ so the log's ``expected_faults`` is what a reader must count:
 - ``restart_clock_at_s``: a replug: the port drops there (one ``port_lost``) and the sensor's
   clock starts again, so the first sample after it is sent at time 0 and the rest follow on. The
   log's ``clock_offsets_s`` lists ``[first index, offset]`` pairs: sent time = recording time + offset.
+  The reader takes that new clock at once (the port was lost); one that starts without a port
+  loss (the recording's own) once 5 of its samples confirm it, the 4 before ``time_jump`` faults
+  (``SampleCheck``).
 
 Times of faults are relative to the recording's first sample.
 """
@@ -33,16 +36,18 @@ from typing import Mapping, Sequence
 import numpy as np
 
 from gyronet.deploy.stream.csvline import encode_csv_header, encode_csv_line
+from gyronet.deploy.stream.events import RESTART_BACK_S, RESTART_JUMP_S
 from gyronet.deploy.stream.lpbus import HEADER_BYTE, HEADER_LEN, encode_lpbus
 from gyronet.deploy.stream.lpbus_layout import LpBusLayout
+from gyronet.recordings.guard import CONFIRM_SAMPLES
 
 PROTOCOLS = ("lpbus", "csv")
 # The parser reason each injected fault kind produces, per protocol.
 EXPECTED_REASON = {
     "lpbus": {"garbage": "garbage", "corrupt": "bad_checksum", "truncate": "truncated", "nan": "nan",
-              "port_drop": "port_lost"},
+              "port_drop": "port_lost", "new_clock": "time_jump"},
     "csv": {"garbage": "garbage", "corrupt": "non_numeric", "truncate": "truncated", "nan": "nan",
-            "port_drop": "port_lost"},
+            "port_drop": "port_lost", "new_clock": "time_jump"},
 }
 
 
@@ -165,11 +170,14 @@ def plan_stream(columns: Mapping[str, np.ndarray], protocol: str = "lpbus", faul
     decide = np.random.default_rng([faults.seed, 0])
     rng = np.random.default_rng([faults.seed, 1])
     time_s = np.asarray(columns["time_s"], dtype=np.float64)
-    injected = dict.fromkeys(["garbage", "corrupt", "truncate", "nan", "out_of_range", "gap", "port_drop"], 0)
+    injected = dict.fromkeys(["garbage", "corrupt", "truncate", "nan", "out_of_range", "gap", "port_drop", "new_clock"], 0)
     events: list[Event] = []
     good, out_of_range = [], []
     drops = list(faults.drop_port_at_s)
     restarts, clock_offsets, offset_s = list(faults.restart_clock_at_s), [], 0.0
+    confirming: int | None = None  # the samples of a restarted clock the reader has seen, until it confirms it
+    last_s: float | None = None  # the last time the reader took
+    reopened = False  # the port was lost since: the reader takes a new clock at once
     previous_cut = False
     for index in range(len(time_s)):
         t_rel = float(time_s[index] - time_s[0])
@@ -177,11 +185,13 @@ def plan_stream(columns: Mapping[str, np.ndarray], protocol: str = "lpbus", faul
             drops.pop(0)
             events.append(Event(float(time_s[index]), drop=True))
             injected["port_drop"] += 1
+            reopened, confirming = True, None
         if restarts and t_rel >= restarts[0]:  # a replug: the port goes, the clock starts again
             while restarts and t_rel >= restarts[0]:
                 restarts.pop(0)
             events.append(Event(float(time_s[index]), drop=True))
             injected["port_drop"] += 1
+            reopened, confirming = True, None
             offset_s = -float(time_s[index])
             clock_offsets.append([index, offset_s])
         u_garbage, u_damage = decide.random(2)
@@ -206,6 +216,17 @@ def plan_stream(columns: Mapping[str, np.ndarray], protocol: str = "lpbus", faul
             frame = framer.truncate(frame, rng)
         previous_cut = kind == "truncate"
         events.append(Event(float(time_s[index]), frame))
+        if kind is None:  # a sample the time check sees: a new clock (a replug, or the recording's own) is confirmed
+            step_s = math.nan if last_s is None else row["time_s"] - last_s
+            if confirming is None and (step_s < -RESTART_BACK_S or step_s > RESTART_JUMP_S) and not reopened:
+                confirming = 0
+            if confirming is not None:
+                confirming += 1
+                if confirming < CONFIRM_SAMPLES:
+                    injected["new_clock"] += 1
+                    continue
+                confirming = None
+            last_s, reopened = row["time_s"], False
         if kind is None:
             good.append(index)
             if is_oor:

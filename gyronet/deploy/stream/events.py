@@ -14,6 +14,8 @@ from typing import Iterable, Mapping, NamedTuple
 
 import numpy as np
 
+from gyronet.recordings.guard import CONFIRM_SAMPLES
+
 # Every reason a Fault can carry, with what it means. Parsers and the reader use only these.
 FAULT_REASONS: dict[str, str] = {
     "garbage": "bytes that are not part of any frame or line (skipped up to the next header)",
@@ -28,10 +30,12 @@ FAULT_REASONS: dict[str, str] = {
     "bad_header": "CSV header line that lacks a column the consumer needs, or that no sample line fits"
                   " (the previous header stays)",
     "time_not_increasing": "time_s not after the previous good sample's (back by at most the restart threshold)",
+    "time_jump": "time_s far from the clock's (a restart not yet confirmed, or one stamp corrupted)",
     "port_lost": "the serial port failed or disappeared (the reader reopens it)",
 }
 
 EXCERPT_BYTES = 32
+RESTART_BACK_S, RESTART_JUMP_S = 1.0, 3600.0  # SampleCheck's defaults: steps of the clock that are a new clock
 
 log = logging.getLogger(__name__)
 
@@ -177,7 +181,13 @@ class SampleCheck:
     restarted sends times far before the last one: rather than refusing every sample until the
     new clock passes the old one, a step back of more than ``restart_back_s``, or forward of more
     than ``restart_jump_s``, starts a new segment (``Sample.new_segment``; counted in
-    ``n_restarts``).
+    ``n_restarts``) once the new clock is confirmed: ``CONFIRM_SAMPLES`` samples in a row that
+    follow one another and not the old clock (as many as the temperature guard needs to confirm a
+    step; not its 2 s as well, which would be 2000 samples at 1 kHz). Until then they are
+    ``time_jump`` faults, and a sample that continues the old clock drops them: one corrupted stamp
+    is one lost sample, not a restart whose start-up window would close on that sample. Right after
+    the port was lost and reopened (``reopened``: a replug, a power cycle), the first sample's new
+    clock is taken at once.
 
     Parameters
     ----------
@@ -187,11 +197,17 @@ class SampleCheck:
         Largest step forward that is a gap in the same clock, s (None: any).
     """
 
-    def __init__(self, restart_back_s: float = 1.0, restart_jump_s: float | None = 3600.0) -> None:
+    def __init__(self, restart_back_s: float = RESTART_BACK_S, restart_jump_s: float | None = RESTART_JUMP_S) -> None:
         self.restart_back_s = float(restart_back_s)
         self.restart_jump_s = None if restart_jump_s is None else float(restart_jump_s)
         self.last_time_s: float | None = None
         self.n_restarts = 0
+        self._new_clock: list[float] | None = None  # a restart being confirmed: [first time, last time, samples]
+        self._reopened = False
+
+    def reopened(self) -> None:
+        """The port was lost and reopened: the next sample may start a new clock at once."""
+        self._reopened, self._new_clock = True, None
 
     def check(self, time_s: float, values: Mapping[str, float], raw: bytes = b"") -> Sample | Fault:
         """A ``Sample`` when the values pass, else the ``Fault`` that says why."""
@@ -202,15 +218,21 @@ class SampleCheck:
                     return Fault("nan", raw, f"{name}={value}")
         last = self.last_time_s
         new_segment = False
-        if last is not None and not time_s > last:
-            if last - time_s <= self.restart_back_s:
+        if last is not None and not (last < time_s and (self.restart_jump_s is None
+                                                        or time_s - last <= self.restart_jump_s)):
+            clock = self._new_clock
+            follows = clock is not None and time_s > clock[1]  # the clock being confirmed goes on
+            if time_s <= last and last - time_s <= self.restart_back_s and not follows:
                 return Fault("time_not_increasing", raw, f"time_s={time_s!r} after {last!r}")
+            if not follows:
+                clock = self._new_clock = [time_s, time_s, 0]
+            clock[1], clock[2] = time_s, clock[2] + 1
+            if clock[2] < CONFIRM_SAMPLES and not self._reopened:
+                return Fault("time_jump", raw, f"time_s={time_s!r} after {last!r} (a new clock? {clock[2]} so far)")
             new_segment = True
-        elif last is not None and self.restart_jump_s is not None and time_s - last > self.restart_jump_s:
-            new_segment = True
-        if new_segment:
             self.n_restarts += 1
-            log.warning("sensor clock restarted (time_s %r after %r): a new segment", time_s, last)
+            log.warning("sensor clock restarted (time_s from %r after %r): a new segment", clock[0], last)
+        self._new_clock, self._reopened = None, False
         self.last_time_s = time_s
         return Sample(float(time_s), dict(values), new_segment)
 
@@ -220,6 +242,8 @@ class SampleCheck:
         Each time after the one before it (the first after ``last_time_s``), by at most ``restart_jump_s``;
         ``last_time_s`` is not moved.
         """
+        if self._new_clock is not None:  # a restart being confirmed: the sample by sample path decides
+            return np.zeros(len(time_s), dtype=bool)
         previous = np.empty_like(time_s)
         previous[1:] = time_s[:-1]
         previous[0] = time_s[0] if self.last_time_s is None else self.last_time_s

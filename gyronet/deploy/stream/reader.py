@@ -132,6 +132,8 @@ def read_chunks(port: serial.SerialBase | None, parser: Parser, *, url: str | No
             except PORT_ERRORS as err:
                 log.warning("port %s lost: %s", url, err)
                 yield [Fault("port_lost", detail=str(err)[:80]), *parser.flush()]
+                if getattr(parser, "check", None) is not None:
+                    parser.check.reopened()  # a replugged sensor's clock may start again
                 _close_quietly(port)
                 port, lost = None, True
                 if url is None:
