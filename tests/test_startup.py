@@ -35,6 +35,18 @@ def test_the_window_mean_is_removed_after_the_window_and_only_after():
     assert startup.done
 
 
+def test_a_window_whose_samples_span_under_half_of_it_is_named(caplog):
+    rng = np.random.default_rng(0)
+    time_s = np.concatenate([[0.0], np.arange(100.0, 400.0)])  # one sample, then a 100 s gap past a 60 s window
+    with caplog.at_level("WARNING", logger="gyronet.bundle.startup"):
+        StartupOffset(still_s=60).process(time_s, rng.normal(0, 0.1, (len(time_s), 3)))
+    assert "span 1 s of its 60 s (1 samples" in caplog.text
+    caplog.clear()
+    with caplog.at_level("WARNING", logger="gyronet.bundle.startup"):
+        StartupOffset(still_s=60).process(np.arange(100.0), rng.normal(0, 0.1, (100, 3)))
+    assert not caplog.text
+
+
 def test_the_offsets_noise_is_the_window_means_and_widens_only_what_follows():
     """White noise of 0.1 deg/s on a slow drift: the offset's error is 0.1 / sqrt(n), the bar grows by it."""
     rng = np.random.default_rng(2)

@@ -157,6 +157,11 @@ class StartupOffset:
                 f"departs from the window's median by {departure[bin_, axis]:.3g} deg/s at {at_s:g} s after "
                 f"the start (bound {bound[axis]:.3g} deg/s); keep the sensor still for the first "
                 f"{self.still_s:g} s, or lower startup.still_s")
+        span_s = float(np.ptp(np.flatnonzero(filled)) + 1) * BIN_S
+        if span_s < 0.5 * self.still_s:
+            log.warning("the start-up window's good samples span %g s of its %g s (%d samples: a gap or a restart "
+                        "inside it): its offset is poorly measured and may bias every later sample", span_s,
+                        self.still_s, int(counts.sum()))
         # offset = mean(gyro - drift) - static rate, over every window sample
         self.offset_dps = self._sums.sum(0) / counts.sum() - self.static_rate_dps
         self.noise_var_dps2 = self._diff_sq / (2.0 * max(counts.sum() - 1, 1)) / counts.sum()
