@@ -5,6 +5,8 @@ faults, out-of-range temperatures, clock restarts and the start-up window's end 
 and both must equal the offline path on each segment's samples. A lone frame is still written
 before the next read.
 """
+import json
+
 import numpy as np
 import pandas as pd
 import pytest
@@ -123,8 +125,11 @@ def test_motion_in_the_start_up_window_stops_after_the_windows_rows_as_per_sampl
     for per_sample in (False, True):
         name = "single" if per_sample else "chunked"
         with pytest.raises(StartupMotionError, match="motion in the start-up window"):
-            run(monkeypatch, bundle, tmp_path, reads, per_sample, name, startup={"still_s": 120.0})
+            run(monkeypatch, bundle, tmp_path, reads, per_sample, name, startup={"still_s": 120.0},
+                summary_path=tmp_path / f"{name}.json")
         written[name] = pd.read_csv(tmp_path / f"{name}.csv", comment="#")
+        summary = json.loads((tmp_path / f"{name}.json").read_text())  # the fault counts are kept, and why it ended
+        assert summary["stopped"] == "error" and summary["error"].startswith("motion in the start-up window")
     assert len(written["chunked"]) == len(written["single"]) == 240  # the window's rows: 120 s at 2 Hz
     assert_same_rows(written["chunked"], written["single"])
 

@@ -37,6 +37,7 @@ from gyronet.deploy.stream.priority import use_realtime
 from gyronet.deploy.stream.reader import open_port_or_fail, read_chunks
 from gyronet.deploy.stream.signals import stop_on_signals
 from gyronet.deploy.stream.summary import write_summary
+from gyronet.errors import GyronetError
 
 log = logging.getLogger(__name__)
 
@@ -175,6 +176,8 @@ def run_stream(bundle_dir: str | Path, port: str, output: str | Path, protocol: 
         sink.write(gate.flush())  # the samples held while the rate was measured
     except OutputError as err:
         stopped, failure = "output_failed", err
+    except GyronetError as err:  # a rate change, motion in the start-up window, another sensor: the run ends here
+        stopped, failure = "error", err
     finally:
         chunks.close()  # closes the port
         out.close()
@@ -182,6 +185,8 @@ def run_stream(bundle_dir: str | Path, port: str, output: str | Path, protocol: 
     _finish_allan(allan, writer)
     summary = _summary(counter, compensator, out, allan, stopped, time.monotonic() - started, sink, sensor)
     summary["recalibration"] = recalibration_figures
+    if failure is not None:
+        summary["error"] = str(failure)
     log.info("stopped (%s): %s; %d out of the trained temperature range; %d clock restart(s)", stopped,
              counter.summary(), summary["n_out_of_range"], summary["clock_restarts"])
     summary_note = ""
@@ -192,8 +197,10 @@ def run_stream(bundle_dir: str | Path, port: str, output: str | Path, protocol: 
         except OutputError as err:
             log.error("%s", err)
             summary_note = f"; {err}"
-    if failure is not None:
+    if isinstance(failure, OutputError):
         raise OutputError(f"{failure}{summary_note}")
+    if failure is not None:
+        raise failure
     return summary
 
 
