@@ -42,6 +42,9 @@ def test_other_rate_is_refused_with_both_rates_and_the_fix(bundle):
     message = str(info.value)
     assert "\n" not in message and message.startswith("F.csv: ")
     assert "10 Hz" in message and "2 Hz" in message and "resample=true" in message
+    for resample in (False, True):  # stamps in milliseconds: 0.002 Hz is named as such, never resampled
+        with pytest.raises(BundleError, match="1000x slower .* is time_s in milliseconds"):
+            compensator.use_input_rate(0.002, resample=resample, source="F.csv")
     compensator.use_input_rate(2.09, resample=False, source="F.csv")  # within 5 %: a clock error
     assert compensator.fs_hz == 2.0
     for bad in (0.0, -2.0, float("nan"), float("inf")):

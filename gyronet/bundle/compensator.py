@@ -106,6 +106,11 @@ class Compensator:
             if self.fs_hz != self.bundle_fs_hz:
                 self._run_at(self.bundle_fs_hz)
             return
+        ratio = self.bundle_fs_hz / fs_hz
+        unit = "milliseconds" if 500 < ratio < 2000 else "microseconds" if 5e5 < ratio < 2e6 else None
+        if unit is not None:  # resampling would make it worse
+            raise BundleError(f"{source}: sampled at {fs_hz:g} Hz, {ratio:.0f}x slower than the bundle {self.source} "
+                              f"was trained at ({self.bundle_fs_hz:g} Hz): is time_s in {unit}? It must be seconds")
         if not resample:
             raise BundleError(f"{source}: sampled at {fs_hz:g} Hz, but the bundle {self.source} was trained at "
                               f"{self.bundle_fs_hz:g} Hz (more than {RATE_TOLERANCE:.0%} apart); pass resample=true "

@@ -62,6 +62,7 @@ class RateGate:
         if intervals_s:
             fs_hz = 1.0 / float(np.median(intervals_s))
             self.compensator.use_input_rate(fs_hz, self.resample, f"{self.source} (over its first {len(held)} samples)")
+            self.compensator.rate_source = self.source  # what a later rate change is said of: the whole stream
         return held
 
 
