@@ -9,8 +9,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from gyronet.recordings.data import (GYRO_COLUMNS, REQUIRED_COLUMNS, block_means, load_recording, split_by_time,
-                          truth_path, write_recording)
+from gyronet.recordings.data import (GYRO_COLUMNS, REQUIRED_COLUMNS, Recording, block_means, load_recording,
+                                     split_by_time, truth_path, warn_timing, write_recording)
 from gyronet.errors import RecordingError
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -330,3 +330,20 @@ def test_the_split_puts_validation_where_there_are_samples():
     time_s = np.arange(0, 1000, 0.1)
     _, val = split_by_time(time_s)
     assert val[(time_s >= 200) & (time_s < 300)].all() and val.sum() == 2000
+
+
+def test_stamps_that_look_wrong_for_training_are_named_once(caplog):
+    def record(time_s, path):
+        n = len(time_s)
+        return Recording({"time_s": np.asarray(time_s, float), "temp_c": np.linspace(20, 30, n),
+                          **{c: np.zeros(n) for c in GYRO_COLUMNS}}, {}, path)
+
+    bursts = np.concatenate([np.arange(50.0) / 10.0 + 300.0 * k for k in range(20)])  # 5 s every 5 min
+    with caplog.at_level("WARNING", logger="gyronet.recordings.data"):
+        warn_timing(record(np.arange(5000.0) * 100.0, "ms.csv"))  # 10 Hz stamped in ms
+        warn_timing(record(bursts, "bursts.csv"))
+        warn_timing(record(bursts, "bursts.csv"))
+        warn_timing(record(np.arange(5000.0) / 10.0, "fine.csv"))
+    messages = [r.getMessage() for r in caplog.records]
+    assert len(messages) == 2 and "ms.csv: 0.01 Hz" in messages[0] and "milliseconds" in messages[0]
+    assert "bursts.csv: no stretch without a break reaches 60 s (the longest is 4.9 s)" in messages[1]

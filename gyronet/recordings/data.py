@@ -237,6 +237,30 @@ def recorded_time_s(time_s: np.ndarray) -> np.ndarray:
     return time_s - time_s[0] - np.concatenate([[0.0], np.cumsum(removed_s)])
 
 
+_TIMING_WARNED: set = set()
+
+
+def warn_timing(recording: Recording, block_s: float = 60.0) -> None:
+    """Warn once per file when its stamps look wrong for training: a rate under 0.1 Hz (time_s in
+    milliseconds?), or no stretch without a break as long as a block (bursts, as psim-tvc's 5 s)."""
+    time_s = recording.time_s
+    if recording.path in _TIMING_WARNED or len(time_s) < 3:
+        return
+    _TIMING_WARNED.add(recording.path)
+    step_s = np.diff(time_s)
+    breaks = np.flatnonzero(step_s > BREAK_FACTOR * np.median(step_s))
+    edges = np.concatenate([[0], breaks + 1, [len(time_s)]])
+    longest_s = max(float(time_s[b - 1] - time_s[a]) for a, b in zip(edges[:-1], edges[1:]))
+    if recording.fs_hz < 0.1:
+        log.warning("%s: %.3g Hz, a sample every %.3g s: if time_s is in milliseconds, the record is 1000x too "
+                    "long and every rate and lag wrong; time_s must be seconds", recording.path, recording.fs_hz,
+                    1.0 / recording.fs_hz)
+    elif longest_s < block_s:
+        log.warning("%s: no stretch without a break reaches %g s (the longest is %.3g s): its %g s blocks are "
+                    "bursts, and the figures and lags chosen on them mean little; record continuously",
+                    recording.path, block_s, longest_s, block_s)
+
+
 def fold_count(val_fraction: float) -> int:
     """How many interleaved validation sets ``split_by_time`` has for ``val_fraction`` (1 in k held out)."""
     return max(2, int(round(1.0 / val_fraction)))

@@ -20,7 +20,7 @@ import numpy as np
 from gyronet.errors import GyronetError, RecordingError
 from gyronet.model.features import PAPER_FEATURES, FeatureExtractor, required_columns
 from gyronet.recordings.data import (AXES, GYRO_COLUMNS, Recording, block_means, gap_blocks, load_recording,
-                                     split_by_time, time_blocks)
+                                     split_by_time, time_blocks, warn_timing)
 
 log = logging.getLogger(__name__)
 
@@ -238,6 +238,7 @@ class DriftData(TrainingData):
         for rec in (r for r in (recording, val_rec) if r is not None):
             check_physical(rec)
             check_features_present(rec, self.features)
+            warn_timing(rec, self.block_s)
         time_s = recording.time_s
         if val_rec is not None:
             n_train, n_val = (len(block_means(t, t, self.block_s)) for t in (time_s, val_rec.time_s))
