@@ -122,6 +122,12 @@ def test_allan_script_reports_the_verdict_of_a_compensated_still_file(tmp_path):
     assert "z: recalibrate" in log and "still_s=600 from the file's # startup_still_s" in log
     report, _ = _allan(tmp_path, "still_s=0")
     assert report["x"]["recalibration"]["n_blocks"] == 180
+    # a still test's true rate (the Earth's, # static_rate_dps) stays in the output: held against it, not zero
+    columns["gyro_y_dps"] = columns["gyro_y_dps"] + 0.02
+    write_compensated(tmp_path / "still.csv", columns, tmp_path, still_s=600.0, static_rate_dps="0,0.02,0")
+    assert "# static_rate_dps=0,0.02,0\n" in (tmp_path / "still.csv").read_text()
+    report, _ = _allan(tmp_path)
+    assert [report[a]["recalibration"]["recalibrate"] for a in "xyz"] == [False, False, True]
 
 
 def _live(time_s, rate, sigma, outside, chunks, still_s=0.0, writer=None):

@@ -41,21 +41,26 @@ def output_columns(time_s: np.ndarray, temp_c: np.ndarray, out: Compensated) -> 
     return columns
 
 
-def compensated_meta(bundle_dir: str | Path, still_s: float = 0.0) -> dict[str, object]:
-    """A compensated file's ``#`` lines: the bundle, and the start-up window (for ``allan.py``'s ``still_s``)."""
+def compensated_meta(bundle_dir: str | Path, still_s: float = 0.0, static_rate_dps=None) -> dict[str, object]:
+    """A compensated file's ``#`` lines: the bundle, the start-up window (for ``allan.py``'s ``still_s``) and
+    the true rate of a still test that stays in the output (the Earth's: ``allan.py`` holds the rate against it)."""
     meta: dict[str, object] = {"compensated_by": Path(bundle_dir).resolve()}
     if still_s:
         still_s = float(still_s)  # every digit: allan.py starts exactly where the offset did
         meta[STILL_S_KEY] = str(int(still_s)) if still_s.is_integer() else repr(still_s)
+    if isinstance(static_rate_dps, str):  # a recording's own # line, passed on as it is
+        meta["static_rate_dps"] = static_rate_dps.strip()
+    elif static_rate_dps is not None and np.any(np.asarray(static_rate_dps, dtype=np.float64)):
+        meta["static_rate_dps"] = ",".join(repr(float(v)) for v in static_rate_dps)
     return meta
 
 
 def write_compensated(path: str | Path, columns: dict[str, np.ndarray], bundle_dir: str | Path,
-                      still_s: float = 0.0) -> Path:
+                      still_s: float = 0.0, static_rate_dps=None) -> Path:
     """Write a compensated file whole or not at all (:func:`gyronet.atomic.atomic_output`): 13
     significant digits of every value, so any value reads back within 1e-12 relative (the
     vectorised writer), or pandas' ``%.13g`` per value if a column is not finite."""
-    meta = compensated_meta(bundle_dir, still_s)
+    meta = compensated_meta(bundle_dir, still_s, static_rate_dps)
     if all(np.isfinite(v).all() for v in columns.values()):
         return write_csv(path, columns, meta, significant=SIGNIFICANT_DIGITS)
     with atomic_output(path) as tmp:
@@ -97,7 +102,10 @@ def compensate_file(bundle_dir: str | Path, input_path: str | Path, output_path:
     recording = load_recording(input_path)
     out = compensate_as_deployed(compensator, recording, resample)
     still_s = 0.0 if compensator.startup is None else compensator.startup.still_s
-    write_compensated(output_path, output_columns(recording.time_s, recording.temp_c, out), bundle_dir, still_s)
+    static = recording.meta.get("static_rate_dps")  # the input's, unless the start-up offset was told another
+    if compensator.startup is not None and compensator.startup.static_rate_dps.any():
+        static = compensator.startup.static_rate_dps
+    write_compensated(output_path, output_columns(recording.time_s, recording.temp_c, out), bundle_dir, still_s, static)
     n_oor = int(out.out_of_range.sum())
     if n_oor:
         low, high = compensator.temp_range_c

@@ -8,8 +8,8 @@ is more than twice what the bundle claims, because the sensor has aged or its hi
 what the training saw.
 
 The limit is set by measurement (docs/guides/error-bars.md#when-to-recalibrate): on held-out
-simulated histories whose bar is calibrated, the worst hour is 1.02-1.47 (18 axes); where the bar
-is wrong, 2.34-8.91 (the real tag's next run on a one-run bar, 6 axes) and 3.16 (x on a history
+simulated histories whose bar is calibrated, the worst hour is 0.95-1.45 (18 axes); where the bar
+is wrong, 2.35-8.87 (the real tag's next run on a one-run bar, 6 axes) and 3.16 (x on a history
 beyond the trained temperatures). Counting blocks beyond 2 sigma instead (three in a row, or one in
 ten over an hour) flagged 13 of the 18 calibrated axes: a drift error wanders slowly, so its blocks
 leave the bar together.

@@ -135,7 +135,9 @@ def run_stream(bundle_dir: str | Path, port: str, output: str | Path, protocol: 
             sensor, parser = _start_lpbus(opened, port, lpbus, compensator, resample, check)
         # a flood's frames (or lines) as columns, decoded at once: the chunk writer takes them as they are
         parser.blocks = True
-        out = LiveWriter(output, bundle_dir, 0.0 if compensator.startup is None else compensator.startup.still_s)
+        startup_offset = compensator.startup
+        out = LiveWriter(output, bundle_dir, 0.0 if startup_offset is None else startup_offset.still_s,
+                         None if startup_offset is None else startup_offset.static_rate_dps)
         writer = _tb_writer(tb_dir) if tb_dir is not None and allan_every_s > 0 else None
         allan = LiveAllan(writer, allan_every_s, float(compensator.meta["fs_hz"]), background=True) \
             if allan_every_s > 0 else None

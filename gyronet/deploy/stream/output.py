@@ -77,7 +77,7 @@ class LiveWriter:
         When the file cannot be created or written (the file then ends with a complete line).
     """
 
-    def __init__(self, path: str | Path, bundle_dir: str | Path, still_s: float = 0.0):
+    def __init__(self, path: str | Path, bundle_dir: str | Path, still_s: float = 0.0, static_rate_dps=None):
         self.path = Path(path)
         self.names = output_names()
         self.n_rows = 0
@@ -87,7 +87,7 @@ class LiveWriter:
             self._fd: int | None = os.open(self.path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o666)
         except OSError as err:
             raise OutputError(f"{self.path}: cannot create the output ({err.strerror or err})") from None
-        meta = compensated_meta(bundle_dir, still_s)
+        meta = compensated_meta(bundle_dir, still_s, static_rate_dps)
         header = "".join(f"# {key}={value}\n" for key, value in meta.items()) + ",".join(self.names) + "\n"
         self._write(header.encode("utf-8"), 0)
 
