@@ -1,4 +1,5 @@
 """Train a drift compensator: python scripts/train.py data.path=F.csv [model=rbf|poly3|lsq] [-m hydra/sweeper=ga]."""
+import json
 import logging
 import sys
 from pathlib import Path
@@ -36,9 +37,12 @@ def main(cfg: DictConfig) -> float:
                                      "lr": cfg.optim.get("lr", 0.0), "seed": cfg.seed})
     finally:
         writer.close()
-    if HydraConfig.get().mode != RunMode.MULTIRUN:  # a newcomer's next step
-        log.info("next: python scripts/compensate.py model=%s input=F.csv output=G.csv (docs/reference/commands.md)",
-                 Path(HydraConfig.get().runtime.output_dir) / "compensator")
+    if HydraConfig.get().mode != RunMode.MULTIRUN:  # a newcomer's next step, with the start-up window the bar assumes
+        bundle = Path(HydraConfig.get().runtime.output_dir) / "compensator"
+        bar = json.loads((bundle / "meta.json").read_text()).get("error_bar") or {}
+        still_s = (bar.get("calibration") or {}).get("startup_s") or 0
+        log.info("next: python scripts/compensate.py model=%s input=F.csv output=G.csv%s (docs/reference/commands.md)",
+                 bundle, f" startup.still_s={still_s:g}" if still_s else "")
     return metrics["val/rmse_dps"]
 
 
