@@ -76,6 +76,8 @@ def test_malformed_files_get_one_clear_line(tmp_path, name):
 def test_missing_file(tmp_path):
     with pytest.raises(RecordingError, match="no such file"):
         load_recording(tmp_path / "nope.csv")
+    with pytest.raises(RecordingError, match="a folder, not a recording"):
+        load_recording(tmp_path)
 
 
 def test_script_refuses_bad_file_without_traceback(tmp_path):

@@ -136,6 +136,8 @@ def load_recording(path: str | os.PathLike, required: Sequence[str] = REQUIRED_C
         With one line naming the file, the line or column, and what is wrong.
     """
     path = Path(path)
+    if path.is_dir():
+        raise RecordingError(f"{path}: a folder, not a recording (give a .csv or .csv.gz file in it)")
     if not path.is_file():
         raise RecordingError(f"{path}: no such file")
     table = parse_table(path, tuple(dict.fromkeys(("time_s", *required))), delimiter, decimal)
