@@ -66,26 +66,36 @@ def test_a_constant_temperature_is_refused(tmp_path, no_feature_work):
     assert "temperature spans 0.5 degC" in _error(path)
 
 
-@pytest.mark.parametrize("column, value, expected", [
-    ("gyro_x_dps", 1e300, "gyro_x_dps = 1e+300 deg/s is outside any sensor's range"),
-    ("gyro_z_dps", -2e4, "gyro_z_dps = -20000 deg/s is outside"),
-    ("temp_c", 1e6, "temp_c = 1e+06 degC is outside any sensor's range (-80 .. 200)"),
-    ("temp_c", -273.0, "temp_c = -273 degC"),
+@pytest.mark.parametrize("column, value, rows, expected", [
+    ("gyro_x_dps", 1e300, [100], "gyro_x_dps = 1e+300 deg/s is outside any sensor's range"),
+    ("gyro_z_dps", -2e4, [100], "gyro_z_dps = -20000 deg/s is outside"),
+    ("temp_c", 1e6, slice(100, None), "temp_c = 1e+06 degC is outside any sensor's range (-80 .. 200)"),
+    ("temp_c", -273.0, slice(100, None), "temp_c = -273 degC"),
 ])
-def test_a_physically_impossible_sample_is_refused_naming_its_line(tmp_path, no_feature_work, column, value,
+def test_a_physically_impossible_sample_is_refused_naming_its_line(tmp_path, no_feature_work, column, value, rows,
                                                                     expected):
     columns = _record()
-    columns[column][100] = value
+    columns[column][rows] = value  # a temperature so on more than 1 % of the rows: a unit or a column wrong
     path = _write(tmp_path, "glitch.csv", columns, {"sensor": "bench"})
     message = _error(path, RecordingError)
     # line 1 is the metadata, 2 the header: row 100 is line 103
-    assert f"line 103: {expected}" in message and "1 such sample(s)" in message
+    assert f"line 103: {expected}" in message and "such sample(s)" in message
+
+
+def test_a_few_impossible_temperatures_are_glitches_left_out_of_training(tmp_path, caplog):
+    columns = _record()
+    columns["temp_c"][100] = 500.0  # one sensor-read glitch in a long chamber log
+    path = _write(tmp_path, "glitch.csv", columns)
+    with caplog.at_level("WARNING", logger="gyronet.training.dataset"):
+        data = DriftData(path)
+    assert data.n_rejected == 1 and data.temp_range_c[1] < 100.0
+    assert "1 of " in caplog.text and "left out of training and of the trained range" in caplog.text
 
 
 def test_the_validation_recording_is_checked_too(tmp_path, no_feature_work):
     train = _write(tmp_path, "train.csv", _record())
     columns = _record()
-    columns["temp_c"][7] = 500.0
+    columns["temp_c"][7:] = 500.0
     val = _write(tmp_path, "val.csv", columns)
     with pytest.raises(RecordingError, match=r"val.csv: line 9: temp_c = 500 degC"):
         DriftData(train, val_path=val)
