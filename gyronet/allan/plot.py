@@ -69,7 +69,8 @@ def _plot_curve(panel, curve: Mapping, color: str, label: str | None,
     taus = np.asarray(curve["taus_s"], dtype=np.float64)
     dev = np.asarray(curve["adev_dps"], dtype=np.float64)
     arw, bias, rrw = (_finite(curve.get(k)) for k in ("arw_deg_rthr", "bias_instability_deg_hr", "rrw_deg_hr_rthr"))
-    terms = f"N={num(arw)} deg/rt(h), B={num(bias)} deg/h, K={num(rrw)} deg/h/rt(h)"
+    bound = "<=" if curve.get("bias_instability_upper_bound") else ""
+    terms = f"N={num(arw)} deg/rt(h), B={bound}{num(bias)} deg/h, K={num(rrw)} deg/h/rt(h)"
     read = taus <= max_fit_tau_s
     panel.loglog(taus[read], dev[read], color=color, lw=1.6, label=f"{label}: {terms}" if label else terms)
     if not read.all():  # too few clusters (noise.MIN_CLUSTERS): shown, not read (joined to the last read tau)

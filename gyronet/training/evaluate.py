@@ -62,5 +62,6 @@ def evaluate(compensator: Any, recording: Any, truth: Mapping[str, np.ndarray] |
 
 
 def _allan_summary(report: Mapping[str, Any]) -> dict[str, Any]:
-    keys = ("arw_deg_rthr", "bias_instability_deg_hr", "rrw_deg_hr_rthr", "taus_s", "adev_dps")
-    return {axis: {k: report[axis][k] for k in keys if k in report[axis]} for axis in AXES}
+    """Each axis's curve and terms as ``allan.py`` reports them (a B that is only a bound says so, with the taus
+    read at), and the segments (the plot's faint tail past the last tau read)."""
+    return {**{axis: dict(report[axis]) for axis in AXES}, "segments": report.get("segments", {})}

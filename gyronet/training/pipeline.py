@@ -149,8 +149,9 @@ def _log_held_out(name: str, result: Mapping[str, Any], temp_range_c: Sequence[f
         return ", ".join(f"{a}={values[a]:.4g}" for a in AXES)
 
     allan = {stage: result["allan"][stage] for stage in ("raw", "compensated")}
-    nb = "; ".join(f"{stage} N {per_axis({a: allan[stage][a]['arw_deg_rthr'] for a in AXES})} deg/sqrt(h), "
-                   f"B {per_axis({a: allan[stage][a]['bias_instability_deg_hr'] for a in AXES})} deg/h"
+    nb = "; ".join(f"{stage} N {per_axis({a: allan[stage][a]['arw_deg_rthr'] for a in AXES})} deg/sqrt(h), B "
+                   + ", ".join(f"{a}={'<=' if allan[stage][a].get('bias_instability_upper_bound') else ''}"
+                               f"{allan[stage][a]['bias_instability_deg_hr']:.4g}" for a in AXES) + " deg/h"
                    for stage in ("compensated", "raw"))
     if "truth" in result:
         log.info("held-out %s: residual / noise floor %s (residual %s deg/s, %g s blocks, against the truth); %s",
@@ -208,9 +209,11 @@ def train_run(data: DriftData, model: torch.nn.Module, optim: Callable | None, o
 def _eval_metrics(result: Mapping[str, Any], prefix: str) -> dict[str, float]:
     metrics = {f"{prefix}/residual_rms_{axis}_dps": value for axis, value in result["residual_rms_dps"].items()}
     for stage in ("raw", "compensated", "noise_only"):
-        for axis, values in result["allan"].get(stage, {}).items():
+        for axis, values in ((a, result["allan"][stage][a]) for a in AXES if stage in result["allan"]):
             metrics[f"{prefix}/{stage}_arw_{axis}_deg_rthr"] = values["arw_deg_rthr"]
             metrics[f"{prefix}/{stage}_bias_instability_{axis}_deg_hr"] = values["bias_instability_deg_hr"]
+            # 1: B is only a bound (the curve still falls at the last tau read)
+            metrics[f"{prefix}/{stage}_bias_instability_bound_{axis}"] = float(values["bias_instability_upper_bound"])
     if "truth" in result:
         for axis in AXES:
             metrics[f"{prefix}/residual_{axis}_dps"] = result["truth"]["residual_dps"][axis]
