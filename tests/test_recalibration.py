@@ -42,6 +42,9 @@ def test_a_bar_that_describes_the_error_holds_and_one_three_times_too_narrow_ask
         low, high = holds[axis]["calibrated_range"]
         assert low <= holds[axis]["within_1_sigma"] <= high and narrow[axis]["within_1_sigma"] < low
     assert "% within 1 on 9 runs in 10 like this one)" in summary_line("x", holds["x"])
+    assert summary_line("x", {**holds["x"], "blocks_out_of_range": 180}).endswith(
+        "; 180 blocks outside the trained temperatures, where the bar is extrapolated: calibrate over them (a chamber "
+        "run that covers them)")
     assert summary_line("y", narrow["y"]).startswith("y: recalibrate: over the 60 min from")
     assert " s after the record's start its 60 s means are " in summary_line("y", narrow["y"])
     at_limit = {**narrow["y"], "worst_hour_rms_ratio": HOUR_RMS_LIMIT + 0.004, "recalibrate": True}

@@ -202,8 +202,8 @@ def summary_line(axis: str, result: dict[str, Any]) -> str:
     verdict = "recalibrate" if result["recalibrate"] else "within its error bar"
     low, high = result.get("calibrated_range", (float("nan"),) * 2)
     luck = f", and {100 * low:.0f}-{100 * high:.0f} % within 1 on 9 runs in 10 like this one" if np.isfinite(low) else ""
-    outside = f"; {result['blocks_out_of_range']} blocks outside the trained temperatures" \
-        if result["blocks_out_of_range"] else ""
+    outside = (f"; {result['blocks_out_of_range']} blocks outside the trained temperatures, where the bar is "
+               "extrapolated: calibrate over them (a chamber run that covers them)") if result["blocks_out_of_range"] else ""
     ratio = f"{result['worst_hour_rms_ratio']:.2f}"
     if float(ratio) == HOUR_RMS_LIMIT:  # "2.00x (limit 2)" would not say which side it is on
         ratio = f"{result['worst_hour_rms_ratio']:.6f}".rstrip("0")
