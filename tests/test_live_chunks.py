@@ -101,6 +101,15 @@ def test_chunked_equals_per_sample_and_offline_with_faults_and_a_restart_inside_
     np.testing.assert_allclose(rows[list(GYRO_COLUMNS)].to_numpy(), rate_dps, rtol=0, atol=1e-9)
 
 
+def test_leaving_the_trained_range_is_one_warning_an_excursion(bundle, flood, tmp_path, monkeypatch, caplog):
+    log, data = flood  # a sample outside every 41 (20 s at 2 Hz): one excursion, named once
+    with caplog.at_level("WARNING", logger="gyronet.deploy.stream.chunk"):
+        summary, _ = run(monkeypatch, bundle, tmp_path, reads_of(data, seed=1), False, "chunked")
+    warned = [r.getMessage() for r in caplog.records if "outside the trained range" in r.getMessage()]
+    assert len(warned) == 1 and "flagged out_of_range" in warned[0]
+    assert summary["n_out_of_range"] == len(log["out_of_range_indices"]) > 10
+
+
 def test_the_start_up_window_ends_inside_a_chunk_as_per_sample_and_offline(bundle, flood, tmp_path, monkeypatch):
     _, data = flood
     reads = reads_of(data, seed=2, max_bytes=20000)

@@ -92,6 +92,7 @@ class ChunkWriter:
         self.max_samples = max_samples
         self.columns = list(dict.fromkeys(["time_s", "temp_c", *compensator.input_columns]))
         self.n_out_of_range = 0
+        self._outside_s: float | None = None  # the last sample outside the trained range
         self.clock_restarts = 0
 
     @property
@@ -195,8 +196,14 @@ class ChunkWriter:
             self.recalibration.add_many(columns["time_s"], result.rate_dps, result.drift_sigma_dps, result.out_of_range)
 
     def _out_of_range(self, temp_c: Sequence[float], time_s: Sequence[float]) -> None:
-        """Count the samples outside the trained range; name each at debug level."""
+        """Count the samples outside the trained range; warn once an excursion (a minute apart), each at debug level."""
         self.n_out_of_range += len(temp_c)
+        if self._outside_s is None or not time_s[0] - self._outside_s < 60.0:
+            low, high = self.compensator.temp_range_c
+            log.warning("%s: temp_c=%.3f degC at %.3f s is outside the trained range (%.2f .. %.2f degC): flagged "
+                        "out_of_range, the model holds its edge value; the rest of this excursion is counted in the "
+                        "summary", self.port, temp_c[0], time_s[0], low, high)
+        self._outside_s = time_s[-1]
         if log.isEnabledFor(logging.DEBUG):
             for temp, time in zip(temp_c, time_s):
                 log.debug("temp_c=%.3f at %.3f s outside the trained range", temp, time)
