@@ -324,3 +324,11 @@ def test_torch_deprecating_torchscript_adds_nothing_to_stderr(torch_jit_warns, b
         save_bundle(TempPolynomial(3), {}, tmp_path / "poly")
         load_unfrozen(tmp_path / "poly")
         assert np.isfinite(Compensator.load(bundle).process(columns).rate_dps).all()
+
+
+def test_a_deployment_says_its_kalman_stage_low_passes(kalman_bundle, bundle):
+    from gyronet.bundle.offline import kalman_line
+
+    line = kalman_line(Compensator.load(kalman_bundle))
+    assert line.startswith("Kalman stage on: the output follows a rate step 50 % after ") and "x/y/z" in line
+    assert kalman_line(Compensator.load(bundle)) is None

@@ -86,6 +86,18 @@ def compensate_as_deployed(compensator: Compensator, recording: Recording, resam
     return out
 
 
+def kalman_line(compensator: Compensator) -> str | None:
+    """One line for a deployment's log when the bundle has a Kalman stage: it low-passes, and by how much."""
+    if compensator.kalman is None:
+        return None
+    from gyronet.model.kalman.costs import step_response
+
+    response = step_response(compensator.kalman, compensator.bundle_fs_hz, 1.0, 30.0)
+    delays = "/".join(f"{response[a]['delay_s']:.2f}" for a in AXES)
+    return (f"Kalman stage on: the output follows a rate step 50 % after {delays} s (x/y/z), a low-pass; quote "
+            "that beside the Allan figures (docs/guides/kalman.md)")
+
+
 def compensate_file(bundle_dir: str | Path, input_path: str | Path, output_path: str | Path,
                     resample: bool = False, startup: Mapping[str, Any] | None = None) -> dict[str, int]:
     """``compensate.py``: read, compensate, write; return counts for the log.
@@ -99,6 +111,8 @@ def compensate_file(bundle_dir: str | Path, input_path: str | Path, output_path:
     if compensator.error_bar is not None:
         bar = compensator.error_bar
         (log.warning if bar.narrow_axes() else log.info)(bar.trust_line())
+    if compensator.kalman is not None:
+        log.info(kalman_line(compensator))
     recording = load_recording(input_path)
     out = compensate_as_deployed(compensator, recording, resample)
     still_s = 0.0 if compensator.startup is None else compensator.startup.still_s
