@@ -349,3 +349,11 @@ def test_stamps_that_look_wrong_for_training_are_named_once(caplog):
     messages = [r.getMessage() for r in caplog.records]
     assert len(messages) == 2 and "ms.csv: 0.01 Hz" in messages[0] and "milliseconds" in messages[0]
     assert "bursts.csv: no stretch without a break reaches 60 s (the longest is 4.9 s)" in messages[1]
+
+
+def test_another_logger_s_names_get_the_renames_to_make(tmp_path):
+    path = tmp_path / "other.csv"
+    path.write_text("t_s,temperature,gx,gy,gz\n0,20,1,2,3\n1,20,1,2,3\n")
+    with pytest.raises(RecordingError, match=r"rename t_s -> time_s, temperature -> temp_c, gx -> gyro_x_dps, "
+                                             r"gy -> gyro_y_dps, gz -> gyro_z_dps \(in s, degC and deg/s\)"):
+        load_recording(path)

@@ -155,11 +155,20 @@ def check_header(path: Path, names: list[str], required: Sequence[str], delimite
     if missing:
         tool, as_lower = other_tool(names), {n.strip().lower() for n in names}
         lower = [c for c in missing if c in as_lower]
+        renames = [f"{n} -> {ALIASES[n.strip().lower()]}" for n in names
+                   if ALIASES.get(n.strip().lower()) in missing]
         hint = (f"; it looks like a {tool} log: python scripts/convert.py input={path} output=F.csv format={tool}"
-                if tool else f"; names are lower case: {', '.join(lower)}" if lower else "")
+                if tool else f"; names are lower case: {', '.join(lower)}" if lower else
+                f"; rename {', '.join(renames)} (in s, degC and deg/s)" if renames else "")
         raise RecordingError(f"{path}: missing required column(s) {', '.join(missing)}"
                              f" (header has {show(', '.join(names), 120)}){hint}")
     return trailing
+
+
+# other loggers' names for the required columns: the error suggests the rename (the units are the user's to check)
+ALIASES = {**dict.fromkeys(("t", "t_s", "time", "timestamp", "timestamp_s", "time_sec"), "time_s"),
+           **dict.fromkeys(("temp", "temperature", "temp_degc", "temperature_c", "t_c"), "temp_c"),
+           **{f"{prefix}{a}": f"gyro_{a}_dps" for a in "xyz" for prefix in ("g", "gyr", "gyro_", "gyro", "w", "omega_")}}
 
 
 def other_tool(names: Sequence[str]) -> str | None:
