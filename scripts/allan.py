@@ -19,6 +19,7 @@ from gyronet.model import recalibration
 from gyronet.recordings.data import ALLAN_COLUMNS, load_recording
 from gyronet.errors import GyronetError
 from gyronet.recordings.importers.rosbag import is_rosbag, read_rates
+from gyronet.recordings.rate_watch import RateWatch
 from gyronet.bundle.offline import SIGMA_COLUMNS, STILL_S_KEY
 from gyronet.training.dataset import static_rate_dps
 from gyronet.training.sigma_table import allan_sigma_summary
@@ -43,6 +44,19 @@ def _still_s(given, meta) -> float:
     return still_s
 
 
+def _refuse_rate_change(recording, source) -> None:
+    """An Allan curve needs one rate: a record whose rate changes (10 Hz, then 50) read N 22 % high, silently."""
+    if len(recording) < 3:
+        return
+    fs_hz = 1.0 / float(np.median(np.diff(recording.time_s[:201])))  # the rate it starts at
+    changes = [c for c in RateWatch(fs_hz).scan(recording.time_s) if abs(c.new_hz / fs_hz - 1.0) > 0.05]
+    if changes:
+        change = changes[0]
+        raise GyronetError(f"{source}: near time_s={change.since_time_s:.6g} the sampling rate changes from "
+                           f"{change.old_hz:.4g} Hz to {change.new_hz:.4g} Hz; an Allan curve needs one rate: split "
+                           "the file there and analyse each part")
+
+
 @command("allan", schemas={"per_decade": int, "still_s": float | None})
 def main(cfg: DictConfig) -> None:
     if OmegaConf.is_missing(cfg, "input"):
@@ -51,6 +65,7 @@ def main(cfg: DictConfig) -> None:
         recording = read_rates(cfg.input, cfg.rosbag.imu_topic, cfg.rosbag.stamp)
     else:
         recording = load_recording(cfg.input, required=ALLAN_COLUMNS)
+    _refuse_rate_change(recording, cfg.input)
     still_s = _still_s(cfg.still_s, recording.meta)
     analysed = recording
     if still_s:  # the start-up window's rows carry no offset yet: a step the Allan curve would read as drift

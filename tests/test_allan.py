@@ -342,3 +342,14 @@ def test_script_bad_input_one_line(tmp_path, content):
     assert "Traceback" not in proc.stderr
     assert len(proc.stderr.strip().splitlines()) == 1 and "bad.csv" in proc.stderr
     assert not (tmp_path / "a.json").exists()
+
+
+def test_script_refuses_a_record_whose_rate_changes(tmp_path):
+    """1 h at 100 Hz then 2 h at 50 Hz read N 22 % high with no word (a review): an Allan curve needs one rate."""
+    time_s = np.concatenate([np.arange(6000) / 100.0, 60.0 + np.arange(1, 3000) / 50.0])
+    rate = np.random.default_rng(0).normal(0.0, 0.3, (len(time_s), 3))
+    write_recording(tmp_path / "rec.csv", {"time_s": time_s, **{f"gyro_{a}_dps": rate[:, i]
+                                                                for i, a in enumerate("xyz")}})
+    proc = _run_script("input=rec.csv", "output=a.json", cwd=tmp_path)
+    assert proc.returncode != 0 and "Traceback" not in proc.stderr
+    assert "the sampling rate changes from 100 Hz to 50 Hz; an Allan curve needs one rate" in proc.stderr
