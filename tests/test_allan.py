@@ -353,3 +353,10 @@ def test_script_refuses_a_record_whose_rate_changes(tmp_path):
     proc = _run_script("input=rec.csv", "output=a.json", cwd=tmp_path)
     assert proc.returncode != 0 and "Traceback" not in proc.stderr
     assert "the sampling rate changes from 100 Hz to 50 Hz; an Allan curve needs one rate" in proc.stderr
+
+
+def test_a_record_too_short_for_any_term_says_so(caplog):
+    with caplog.at_level("WARNING", logger="gyronet.allan"):
+        report = allan_report(np.arange(5) / 10.0, np.random.default_rng(0).normal(size=(5, 3)))
+    assert "5 samples (0.5 s) are too few to read N, B or K" in caplog.text
+    assert report["x"]["bias_instability_upper_bound"] is False  # every key there, n/a or not

@@ -67,7 +67,8 @@ def noise_parameters(taus_s: np.ndarray, adev: np.ndarray, max_tau_s: float | No
     taus, dev = taus[usable], dev[usable]
     result = dict(arw_deg_rthr=math.nan, bias_instability_deg_hr=math.nan,
                   bias_instability_tau_s=math.nan, rrw_deg_hr_rthr=math.nan,
-                  arw_slope=math.nan, rrw_slope=math.nan, arw_tau_s=math.nan, rrw_tau_s=math.nan)
+                  arw_slope=math.nan, rrw_slope=math.nan, arw_tau_s=math.nan, rrw_tau_s=math.nan,
+                  bias_instability_upper_bound=False)
     if len(taus) < 2:
         return result
     lowest = int(np.argmin(dev))

@@ -91,9 +91,9 @@ def allan_report(time_s: np.ndarray, rate_dps: np.ndarray, fs_hz: float | None =
                     "samples)", n_impossible, GYRO_RANGE_DPS, first_s, time_s[start], time_s[stop - 1],
                     stop - start, n_total)
     elif len(segments) > 1:
-        log.warning("record has %d gaps; Allan analysis uses the longest continuous segment, %.6g..%.6g s"
-                    " (%d of %d samples)", len(segments) - 1, time_s[start], time_s[stop - 1],
-                    stop - start, len(time_s))
+        log.warning("record has %d gap%s; Allan analysis uses the longest continuous segment, %.6g..%.6g s"
+                    " (%d of %d samples)", len(segments) - 1, "s" if len(segments) > 2 else "", time_s[start],
+                    time_s[stop - 1], stop - start, len(time_s))
     m, _ = log_taus(stop - start, fs_hz, per_decade)
     taus_s, adev, n_terms = oadev(rate[start:stop], fs_hz, m=m)
     max_tau_s = (stop - start) / fs_hz / MIN_CLUSTERS
@@ -101,6 +101,9 @@ def allan_report(time_s: np.ndarray, rate_dps: np.ndarray, fs_hz: float | None =
     for column, axis in enumerate(axes[:rate.shape[1]]):
         report[axis] = {"taus_s": taus_s.tolist(), "adev_dps": adev[:, column].tolist(),
                         "n_terms": n_terms.tolist(), **noise_parameters(taus_s, adev[:, column], max_tau_s)}
+    if all(not np.isfinite(report[a]["bias_instability_deg_hr"]) for a in report):
+        log.warning("Allan analysis: %d samples (%.3g s) are too few to read N, B or K: every figure is n/a",
+                    stop - start, (stop - start) / fs_hz)
     gaps_s = np.diff(time_s)[[s[0] - 1 for s in segments[1:]]]
     report["fs_hz"] = float(fs_hz)
     report["segments"] = {"count": len(segments), "used_time_s": [float(time_s[start]), float(time_s[stop - 1])],
