@@ -119,8 +119,19 @@ def command(config_name: str, config_dir: str = "", schemas: Mapping[str, Any] |
     return decorate
 
 
+# Hydra's own flags; any other --name is a habit from argparse tools
+HYDRA_FLAGS = ("--multirun", "--help", "--hydra-help", "--version", "--cfg", "--resolve", "--package", "--run",
+               "--config-path", "--config-name", "--config-dir", "--info", "--shell-completion", "--experimental-rerun")
+
+
 def _refuse_file_globs(overrides: Sequence[str], conf_dir: Path) -> None:
-    """``key=glob(...)`` on a key that is not a config group: Hydra would sweep nothing and exit 0."""
+    """``key=glob(...)`` on a key that is not a config group: Hydra would sweep nothing and exit 0; ``--model X``
+    (argparse's style) would print Hydra's usage."""
+    for at, override in enumerate(overrides):
+        name = override.split("=")[0]
+        if name.startswith("--") and len(name) > 2 and name not in HYDRA_FLAGS:
+            value = override.partition("=")[2] or (overrides[at + 1] if at + 1 < len(overrides) else "VALUE")
+            fail(f"{override}: options are key=value, not --key value: write {name[2:]}={value}")
     for override in overrides:
         key, sep, value = override.partition("=")
         group = key.lstrip("+~").split("@")[0].replace(".", "/")

@@ -181,6 +181,7 @@ TRAIN_EXTRA = {
                         "data.static_rate_dps must be a list of numbers"),
     "eval_paths_text": (["data.path=F.csv", "eval.paths=G.csv"],
                         "eval.paths must be a list, got 'G.csv' (a list on the command line: 'eval.paths=[G.csv]')"),
+    "argparse_style": (["--model", "rbf"], "--model: options are key=value, not --key value: write model=rbf"),
 }
 
 
