@@ -78,7 +78,8 @@ def table_rows(input_path: str | Path, bundles: Mapping[str, str | Path], startu
         window = recording.time_s < recording.time_s[0] + float(startup["still_s"])
         static_dps = np.asarray(startup.get("static_rate_dps") or (0.0, 0.0, 0.0), dtype=np.float64)
         offset_dps = recording.gyro_dps[window].mean(0) - static_dps
-        rows["Raw, start-up offset"] = row(recording.gyro_dps - offset_dps, np.broadcast_to(offset_dps, recording.gyro_dps.shape))
+        rows["Raw, start-up offset"] = row(recording.gyro_dps - offset_dps,
+                                           np.broadcast_to(offset_dps, recording.gyro_dps.shape))
     if truth is not None:
         noise = np.column_stack([truth[f"noise_{a}_dps"] for a in AXES])
         rows["Noise only (truth)"] = _row(recording.time_s[keep], noise[keep], None)

@@ -150,19 +150,19 @@ class ErrorBar:
     def trust_line(self) -> str:
         """What the bar rests on, one line for a deployment's log: how far to trust ``drift_sigma``."""
         blocks = f"{self.calibration.get('n_blocks', 0)} {BLOCK_S:g} s blocks"
-        runs, cross, narrow = self.calibration.get("held_out"), self.calibration.get("cross_within_1_sigma"), self.narrow_axes()
+        runs, cross = self.calibration.get("held_out"), self.calibration.get("cross_within_1_sigma")
         if runs:
-            checked = "" if not cross else ("; each run's blocks within a bar fitted on the other runs: " + "/".join(
-                f"{v:.0%}" for v in cross) + " (x/y/z; goal 60-76 %)" + (f": too narrow on {', '.join(narrow)}, "
-                                                                        "expect larger errors on a next run" if narrow else ""))
+            checked = "" if not cross else ("; each run's blocks within a bar fitted on the other runs: "
+                                            + "/".join(f"{v:.0%}" for v in cross) + " (x/y/z; goal 60-76 %)")
+            if self.narrow_axes():
+                checked += f": too narrow on {', '.join(self.narrow_axes())}, expect larger errors on a next run"
             return f"drift_sigma: calibrated on {blocks} of {len(runs)} runs, each held out in turn{checked}"
         return (f"drift_sigma: calibrated on {blocks} held out of one recording; on a real sensor's next run the "
                 "error was 3-15x it (docs/results/error-bars.md): a campaign (data.paths) calibrates it across runs")
 
     def narrow_axes(self) -> list[str]:
         """The axes a campaign's cross-check found too narrow (under ``CROSS_CHECK_LOW`` of blocks within 1 sigma)."""
-        cross = self.calibration.get("cross_within_1_sigma") or ()
-        return [axis for axis, share in zip("xyz", cross) if share < CROSS_CHECK_LOW]
+        return [a for a, v in zip("xyz", self.calibration.get("cross_within_1_sigma") or ()) if v < CROSS_CHECK_LOW]
 
     # -- meta.json ----------------------------------------------------------------------------------
 

@@ -135,8 +135,8 @@ class SubMeans:
         if self.count:
             mean = [v / self.count for v in self.sums]
             last = self.previous
-            if (last is not None and last[0] + 1 == self.index and last[0] // self.per_block == self.index // self.per_block
-                    and 2 * min(last[2], self.count) >= max(last[2], self.count)):
+            beside = last is not None and last[0] + 1 == self.index and last[0] // self.per_block == self.index // self.per_block
+            if beside and 2 * min(last[2], self.count) >= max(last[2], self.count):
                 self.squares = [s + (a - b) ** 2 for s, a, b in zip(self.squares, mean, last[1])]
                 self.pairs += 1
             self.previous = (self.index, mean, self.count)
