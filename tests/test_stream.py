@@ -17,6 +17,8 @@ from gyronet.deploy.stream import (CsvLineParser, Fault, FaultCounter, FaultPlan
                             encode_csv_header, encode_csv_line, encode_lpbus, lpbus_frame, lrc, make_parser,
                             plan_stream, read_samples)
 
+from gyronet.deploy.stream.events import SampleBlock, as_samples
+
 ROOT = Path(__file__).resolve().parents[1]
 ROW = {"time_s": 0.1, "gyro_x_dps": 1.0, "gyro_y_dps": 2.0, "gyro_z_dps": 3.0,
        "acc_x_g": 0.0, "acc_y_g": 0.0, "acc_z_g": 1.0, "temp_c": 25.0}
@@ -461,10 +463,34 @@ def test_restarted_clock_starts_a_new_segment_instead_of_dropping_samples():
     assert parser.check.n_restarts == 1
     # the same check in the LP-BUS parser, with the thresholds set
     check = SampleCheck(restart_back_s=5.0, restart_jump_s=None)
-    frames = b"".join(encode_lpbus({**ROW, "time_s": t}) for t in (10.0, 10.1, 6.0, 4.0, 4.5, 5.0, 5.5, 6.0, 9000.0))
+    frames = b"".join(encode_lpbus({**ROW, "time_s": t}) for t in (10.0, 10.1, 6.0, 1.0, 1.1, 1.2, 1.3, 1.4, 9000.0))
     out = LpBusParser(check=check).feed(frames)
     assert reasons(out) == ["sample", "sample", "time_not_increasing"] + ["time_jump"] * 4 + ["sample", "sample"]
     assert [s.new_segment for s in out if isinstance(s, Sample)] == [False, False, True, False]
+
+
+def test_a_stale_or_repeated_sample_never_confirms_a_new_clock():
+    check = SampleCheck()
+    times = (99.8, 99.9, 100.0, 0.0, 0.1, 0.2, 0.3, 99.5, 100.0, 0.4, 0.5)
+    out = [check.check(t, {"gyro_x_dps": 0.0}) for t in times]
+    assert reasons(out) == ["sample"] * 3 + ["time_jump"] * 4 + ["time_not_increasing"] * 2 + ["sample"] * 2
+    assert [s.time_s for s in out if isinstance(s, Sample) and s.new_segment] == [0.4] and check.n_restarts == 1
+
+
+@pytest.mark.parametrize("blocks", [False, True])
+def test_after_a_reopened_port_a_corrupted_stamp_is_still_one_fault(blocks):
+    """The reopened port lets the next sample start a new clock at once; once the old clock has gone on (by the
+    flood path too), a corrupted stamp is a fault again."""
+    rows = csv_rows(400, start_s=100.0)
+    rows[300] = {**rows[300], "time_s": 10.0}
+    encode = [encode_csv_line(r, NAMES) for r in rows]
+    parser = CsvLineParser(blocks=blocks)
+    out = parser.feed(encode_csv_header(NAMES) + b"".join(encode[:200]))  # whole reads: the flood path's
+    parser.check.reopened()
+    out += parser.feed(b"".join(encode[200:])) + parser.flush()
+    assert any(isinstance(item, SampleBlock) for item in out) == blocks
+    out = as_samples(out)
+    assert reasons(out).count("time_jump") == 1 and parser.check.n_restarts == 0
 
 
 def test_one_corrupted_stamp_is_one_lost_sample_not_a_restart():

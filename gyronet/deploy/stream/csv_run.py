@@ -73,7 +73,7 @@ class LineRun:
         """The good lines from ``position`` (a line's start) on, up to the first that is not: a block (or None),
         its bytes, and, when None, where to try again (the lines before that go one by one).
 
-        ``check.last_time_s`` moves to the last good line's time, as ``SampleCheck.check`` does.
+        ``check.took`` the last good line's time, as ``SampleCheck.check`` does.
         """
         lines = self._lines
         first = -1
@@ -102,7 +102,7 @@ class LineRun:
         values = values[:, :n_good]
         columns = {"time_s": values[self.time_index],
                    **{name: values[i] for i, name in enumerate(self.header) if i != self.time_index}}
-        check.last_time_s = float(values[self.time_index, -1])
+        check.took(values[self.time_index, -1])
         return SampleBlock(columns), int(lines.ends[first + n_good - 1]) + 1 - position, 0
 
     def _look(self, raw: bytes, base: int) -> _Lines:

@@ -23,7 +23,7 @@ so the log's ``expected_faults`` is what a reader must count:
   log's ``clock_offsets_s`` lists ``[first index, offset]`` pairs: sent time = recording time + offset.
   The reader takes that new clock at once (the port was lost); one that starts without a port
   loss (the recording's own) once 5 of its samples confirm it, the 4 before ``time_jump`` faults
-  (``SampleCheck``).
+  (``SampleCheck`` with its default thresholds, which the plan assumes).
 
 Times of faults are relative to the recording's first sample.
 """

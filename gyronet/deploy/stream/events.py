@@ -220,11 +220,10 @@ class SampleCheck:
         new_segment = False
         if last is not None and not (last < time_s and (self.restart_jump_s is None
                                                         or time_s - last <= self.restart_jump_s)):
-            clock = self._new_clock
-            follows = clock is not None and time_s > clock[1]  # the clock being confirmed goes on
-            if time_s <= last and last - time_s <= self.restart_back_s and not follows:
+            if time_s <= last and last - time_s <= self.restart_back_s:  # stale, or a repeat: never a new clock
                 return Fault("time_not_increasing", raw, f"time_s={time_s!r} after {last!r}")
-            if not follows:
+            clock = self._new_clock
+            if clock is None or not time_s > clock[1]:  # not the clock being confirmed going on: a new candidate
                 clock = self._new_clock = [time_s, time_s, 0]
             clock[1], clock[2] = time_s, clock[2] + 1
             if clock[2] < CONFIRM_SAMPLES and not self._reopened:
@@ -232,9 +231,12 @@ class SampleCheck:
             new_segment = True
             self.n_restarts += 1
             log.warning("sensor clock restarted (time_s from %r after %r): a new segment", clock[0], last)
-        self._new_clock, self._reopened = None, False
-        self.last_time_s = time_s
+        self.took(time_s)
         return Sample(float(time_s), dict(values), new_segment)
+
+    def took(self, time_s: float) -> None:
+        """A sample of the current clock was taken at ``time_s`` (also by a flood path): no restart is pending."""
+        self.last_time_s, self._new_clock, self._reopened = float(time_s), None, False
 
     def times_ok(self, time_s: np.ndarray) -> np.ndarray:
         """Where ``check`` would take each time of a run as the next of the same clock (a flood path's time check).

@@ -54,7 +54,7 @@ class FrameRun:
     def decode(self, buffer: bytearray, position: int, check: SampleCheck) -> tuple[SampleBlock | None, int]:
         """The good frames from ``position`` on, up to the first that is not (a block, or None), and their bytes.
 
-        ``check.last_time_s`` moves to the last good frame's time, as ``SampleCheck.check`` does.
+        ``check.took`` the last good frame's time, as ``SampleCheck.check`` does.
         """
         n_frames = (len(buffer) - position) // self.frame_bytes
         if n_frames < MIN_RUN_FRAMES:
@@ -90,6 +90,6 @@ class FrameRun:
         if n_good == 0:
             return None, 0
         columns = {"time_s": time_s[:n_good], **{name: values[i, :n_good] for i, name in enumerate(self.names)}}
-        check.last_time_s = float(time_s[n_good - 1])
+        check.took(time_s[n_good - 1])
         return SampleBlock(columns), n_good * self.frame_bytes
 
