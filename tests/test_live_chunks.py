@@ -102,11 +102,13 @@ def test_chunked_equals_per_sample_and_offline_with_faults_and_a_restart_inside_
 
 
 def test_leaving_the_trained_range_is_one_warning_an_excursion(bundle, flood, tmp_path, monkeypatch, caplog):
-    log, data = flood  # a sample outside every 41 (20 s at 2 Hz): one excursion, named once
-    with caplog.at_level("WARNING", logger="gyronet.deploy.stream.chunk"):
-        summary, _ = run(monkeypatch, bundle, tmp_path, reads_of(data, seed=1), False, "chunked")
-    warned = [r.getMessage() for r in caplog.records if "outside the trained range" in r.getMessage()]
-    assert len(warned) == 1 and "flagged out_of_range" in warned[0]
+    log, data = flood  # a sample outside every 41 (20 s at 2 Hz): one excursion a clock, named once each
+    for per_sample in (False, True):
+        caplog.clear()
+        with caplog.at_level("WARNING", logger="gyronet.deploy.stream.chunk"):
+            summary, _ = run(monkeypatch, bundle, tmp_path, reads_of(data, seed=1), per_sample, f"run{per_sample}")
+        warned = [r.getMessage() for r in caplog.records if "outside the trained range" in r.getMessage()]
+        assert len(warned) == 2 and "flagged out_of_range" in warned[0] and " at 20.000 s " in warned[0]
     assert summary["n_out_of_range"] == len(log["out_of_range_indices"]) > 10
 
 
