@@ -190,3 +190,19 @@ def test_the_live_check_skips_each_startup_window_after_a_clock_restart_and_writ
     figures = live.finish()
     assert figures["x"]["n_blocks"] == 25 + 25 and not figures["x"]["recalibrate"]  # 1500 s after each window
     assert {tag for tag, _, _ in writer.scalars} == {f"recalibration/worst_hour_{a}" for a in "xyz"}
+
+
+def test_below_two_samples_a_sub_block_the_noise_comes_from_first_differences():
+    """One sample every 15 s: a sub-block's 'mean' is one sample, and scaling its pairs to 60 s understated the noise."""
+    from gyronet.model.recalibration import SubMeans
+
+    rng = np.random.default_rng(0)
+    time_s = np.arange(0.0, 6 * 3600.0, 15.0)
+    subs = SubMeans(60.0)
+    subs.add((time_s // 10.0).astype(np.int64), rng.normal(size=(len(time_s), 3)))
+    subs.close()
+    assert subs.avar() is None  # no pair: check() falls back to the first differences
+    fine = SubMeans(60.0)  # at 1 Hz: pairs, and the Allan variance at 10 s of unit white noise, 0.1
+    fine.add((np.arange(36000.0) // 10.0).astype(np.int64), rng.normal(size=(36000, 3)))
+    fine.close()
+    np.testing.assert_allclose(fine.avar(), 0.1, rtol=0.08)

@@ -18,7 +18,7 @@ The white noise of a 60 s mean, added to the bar, is measured from consecutive 1
 each block (their Allan variance at 10 s, scaled to 60 s), not from first differences: a low-pass
 (the Kalman stage, a sensor's own filter) thins first differences several times over but leaves a
 60 s mean's noise as it was, and on `kalman=ar` output the first differences called a bar that
-holds 2.2-4.1x too narrow. A record too slow for two samples in 10 s falls back to them.
+holds 2.2-4.1x too narrow. A record too slow for two samples in 10 s (under 0.2 Hz) falls back to them.
 """
 from __future__ import annotations
 
@@ -136,7 +136,8 @@ class SubMeans:
             mean = [v / self.count for v in self.sums]
             last = self.previous
             beside = last is not None and last[0] + 1 == self.index and last[0] // self.per_block == self.index // self.per_block
-            if beside and 2 * min(last[2], self.count) >= max(last[2], self.count):
+            # two samples each at least (one is no mean: below 0.2 Hz the first differences decide)
+            if beside and min(last[2], self.count) >= 2 and 2 * min(last[2], self.count) >= max(last[2], self.count):
                 self.squares = [s + (a - b) ** 2 for s, a, b in zip(self.squares, mean, last[1])]
                 self.pairs += 1
             self.previous = (self.index, mean, self.count)
