@@ -373,3 +373,19 @@ def test_run_offsets_repeat_bit_for_bit():
         results.add(offsets.raw.detach().numpy().tobytes())
         heap = heap[-3:] if k % 7 == 0 else heap
     assert len(results) == 1
+
+
+def test_a_campaign_whose_span_is_a_glitch_s_is_refused(tmp_path):
+    """A glitch row (655.35 degC, a sensor's 0xFFFF) is left out as a glitch; the 1 degC span must hold without it."""
+    from gyronet.recordings.data import write_recording
+
+    paths = []
+    for k in range(2):
+        time_s = np.arange(3000.0)
+        columns = {"time_s": time_s, "temp_c": 25.0 + 0.3 * np.sin(time_s / 300.0 + k),
+                   **{f"gyro_{a}_dps": np.zeros(3000) for a in "xyz"}}
+        columns["temp_c"][1000] = 655.35
+        paths.append(tmp_path / f"run{k}.csv")
+        write_recording(paths[-1], columns)
+    with pytest.raises(GyronetError, match=r"accepted temperatures span 0.6 degC together"):
+        load_runs([str(p) for p in paths], PAPER_FEATURES)

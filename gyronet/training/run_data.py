@@ -10,7 +10,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from gyronet.errors import GyronetError
-from gyronet.recordings.data import REQUIRED_COLUMNS, Recording
+from gyronet.recordings.data import REQUIRED_COLUMNS, Recording, warn_timing
 from gyronet.training.dataset import (
     MIN_TEMP_SPAN_C,
     MIN_VAL_BLOCKS,
@@ -98,6 +98,7 @@ def load_runs(paths: Sequence[str], specs: Sequence[dict], static_rate: Sequence
     for index, (path, rec) in enumerate(zip(paths, recordings)):
         check_physical(rec)  # before any feature work, as for one recording
         check_features_present(rec, specs)
+        warn_timing(rec)
         name = run_name(str(path))
         name = name if name not in names else f"{name}_{index}"
         names.add(name)
@@ -109,6 +110,10 @@ def load_runs(paths: Sequence[str], specs: Sequence[dict], static_rate: Sequence
         log.warning("%s: %d of %d rows have an impossible temperature (a glitch, gyronet.recordings.guard): left out of "
                     "training and of the trained range", path, int(np.count_nonzero(~accepted)), len(accepted))
         runs.append(Run(rec, name, features[accepted], targets[accepted], index, str(path), accepted))
+    span_c = max(float(r.temp_c.max()) for r in runs) - min(float(r.temp_c.min()) for r in runs)
+    if span_c < MIN_TEMP_SPAN_C:  # a glitch row gave the check above its span
+        raise GyronetError(f"data.paths: the runs' accepted temperatures span {span_c:.3g} degC together; a drift "
+                           f"model needs at least {MIN_TEMP_SPAN_C:g} degC of range")
     return runs
 
 
