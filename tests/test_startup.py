@@ -203,3 +203,18 @@ def test_live_stream_with_startup_equals_offline(bundle, biased_csv, tmp_path):
     offline = comp.process(load_recording(short).columns).rate_dps
     assert len(live) == len(offline)
     np.testing.assert_allclose(live[list(GYRO_COLUMNS)].to_numpy(), offline, rtol=0, atol=1e-9)
+
+
+def test_the_output_names_the_true_rate_left_in_it(bundle, biased_csv, tmp_path):
+    """Without a start-up offset the input's Earth rate stays in the output; the offset takes the window's rate,
+    Earth's included, unless told its static_rate_dps: an output labelled with a rate it lacks read as drift."""
+    from gyronet.bundle.offline import compensate_file
+
+    assert "# static_rate_dps=" in biased_csv.read_text()[:400]
+    lines = {}
+    for name, startup in (("plain", None), ("offset", {"still_s": 600}),
+                          ("told", {"still_s": 600, "static_rate_dps": [0.0, 0.01, 0.0]})):
+        compensate_file(bundle, biased_csv, tmp_path / f"{name}.csv", startup=startup)
+        head = (tmp_path / f"{name}.csv").read_text()[:400]
+        lines[name] = [line for line in head.splitlines() if line.startswith("# static_rate_dps=")]
+    assert lines["plain"] and not lines["offset"] and lines["told"] == ["# static_rate_dps=0.0,0.01,0.0"]

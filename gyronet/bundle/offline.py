@@ -116,9 +116,9 @@ def compensate_file(bundle_dir: str | Path, input_path: str | Path, output_path:
     recording = load_recording(input_path)
     out = compensate_as_deployed(compensator, recording, resample)
     still_s = 0.0 if compensator.startup is None else compensator.startup.still_s
-    static = recording.meta.get("static_rate_dps")  # the input's, unless the start-up offset was told another
-    if compensator.startup is not None and compensator.startup.static_rate_dps.any():
-        static = compensator.startup.static_rate_dps
+    # the true rate left in the output: the input's, unless a start-up offset took the window's rate for its own
+    # (it removes everything but its static_rate_dps, 0 unless given)
+    static = recording.meta.get("static_rate_dps") if compensator.startup is None else compensator.startup.static_rate_dps
     write_compensated(output_path, output_columns(recording.time_s, recording.temp_c, out), bundle_dir, still_s, static)
     n_oor = int(out.out_of_range.sum())
     if n_oor:
