@@ -357,3 +357,11 @@ def test_another_logger_s_names_get_the_renames_to_make(tmp_path):
     with pytest.raises(RecordingError, match=r"rename t_s -> time_s, temperature -> temp_c, gx -> gyro_x_dps, "
                                              r"gy -> gyro_y_dps, gz -> gyro_z_dps \(in s, degC and deg/s\)"):
         load_recording(path)
+
+
+def test_a_bag_or_ulog_given_as_a_recording_is_sent_to_convert(tmp_path):
+    for name in ("run.bag", "run.mcap", "flight.ulg"):
+        (tmp_path / name).write_bytes(b"\x00\x01")
+        with pytest.raises(RecordingError, match=rf"not a recording: convert it first \(python scripts/convert.py "
+                                                 rf"input=.*{name} output=F.csv\)"):
+            load_recording(tmp_path / name)

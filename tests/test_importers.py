@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from gyronet.recordings.data import load_recording
+from gyronet.recordings.data import load_recording, write_recording
 from gyronet.errors import GyronetError, RecordingError
 from gyronet.recordings.importers import convert, detect_format, import_recording
 
@@ -197,6 +197,8 @@ def test_lpms_two_sensors_need_a_sensor_id(tmp_path):
         import_recording(src, "lpms")
     rec = import_recording(src, "lpms", sensor_id=2)
     assert len(rec) == 5 and np.all(rec.columns["gyro_x_dps"] == -3.0)
+    with pytest.raises(RecordingError, match=r"lpms.sensor_id must be a SensorId number \(the file has 1, 2\), got 'abc'"):
+        import_recording(src, "lpms", sensor_id="abc")
     assert rec.meta["sensor"] == "LP-Research LPMS (SensorId 2)"
 
 
@@ -207,6 +209,13 @@ def test_lpms_header_without_units_needs_gyro_unit(tmp_path):
         import_recording(src, "lpms")
     rec = import_recording(src, "lpms", gyro_unit="rad/s")
     assert rec.columns["gyro_z_dps"][0] == pytest.approx(math.degrees(0.3))
+    # OpenZen writes "(deg/s)" whatever the sensor sends: the option, given, wins over the header
+    src = write_lpms(tmp_path / "said.csv", LPMS_LATER, lpms_rows(gyro=0.1))
+    assert import_recording(src, "lpms", gyro_unit="rad/s").columns["gyro_x_dps"][0] == pytest.approx(math.degrees(0.1))
+    # and a contract CSV is no LPMS log, though its columns have the names an LPMS log would be given
+    with pytest.raises(RecordingError, match="not a usable LPMS log"):
+        import_recording(write_lpms(tmp_path / "contract.csv", "time_s,temp_c,gyro_x_dps,gyro_y_dps,gyro_z_dps",
+                                    ["0,25,1,2,3", "0.01,25,1,2,3"]), "lpms")
 
 
 @pytest.mark.parametrize("header, rows, expected", [
@@ -375,6 +384,17 @@ def test_unknown_format_and_option_are_errors(tmp_path):
         import_recording(src, "lpms", drop_spikes=True)
 
 
+def test_convert_keeps_every_digit_of_a_unix_time(tmp_path):
+    """12 significant digits gave Unix time 10 ms steps: a 400 Hz file came back with repeated stamps."""
+    src = tmp_path / "epoch.csv"
+    time_s = 1765000000.0 + np.arange(50) / 400.0
+    write_recording(src, {"time_s": time_s, "temp_c": np.full(50, 20.0),
+                          **{c: np.zeros(50) for c in ("gyro_x_dps", "gyro_y_dps", "gyro_z_dps")}},
+                    float_format="%.17g")
+    convert(src, tmp_path / "out.csv")
+    np.testing.assert_array_equal(load_recording(tmp_path / "out.csv").time_s, load_recording(src).time_s)
+
+
 def test_convert_writes_a_recording_that_loads_back(tmp_path):
     src = tmp_path / "t.ulg"
     src.write_bytes(ulog_bytes({0: gyro_samples(20, t0_us=123_456_789_123)}))
@@ -521,3 +541,9 @@ def test_lpms_drops_a_constant_unit_quaternion_but_keeps_moving_outputs(tmp_path
     rec = import_recording(write_lpms(tmp_path / "noquat.csv", LPMS_LATER, rows), "lpms")
     assert not any(c.startswith("quat_") for c in rec.columns)
     assert "quat_w" in rec.meta["disabled_outputs"] and "mag_x_ut" in rec.columns and "euler_x_deg" in rec.columns
+
+
+def test_a_quoted_contract_header_is_recognised(tmp_path):
+    src = tmp_path / "quoted.csv"
+    src.write_text('"time_s","temp_c","gyro_x_dps","gyro_y_dps","gyro_z_dps"\n0,20,1,2,3\n0.1,20,1,2,3\n')
+    assert detect_format(src) == "csv"  # the loader reads it; the format sniffer split it without unquoting

@@ -265,3 +265,15 @@ def allan_report_of(recording):
     from gyronet.allan import allan_report
 
     return allan_report(recording.time_s, recording.gyro_dps)
+
+
+def test_a_zero_header_stamp_among_real_ones_is_left_out_not_the_time_base(tmp_path):
+    """A driver's first message often carries stamp 0: it became the origin, every time_s a Unix time."""
+    imu = imu_stream()
+    imu["stamp_ns"] = imu["stamp_ns"].copy()
+    imu["stamp_ns"][0] = 0
+    imu["received_ns"] = T0_NS + np.arange(len(imu["stamp_ns"])) * 20_000_000
+    bag = write_bag(tmp_path / "rec", "bag", {"/imu/data": imu}, {"/imu/temperature": temp_stream(T0_NS - 10**9)})
+    rec = import_recording(bag)
+    assert len(rec) == len(imu["stamp_ns"]) - 1 and rec.meta["zero_stamps"] == "1"
+    assert rec.meta["stamp_origin_ns"] == str(imu["stamp_ns"][1]) and rec.time_s[-1] < 10.0

@@ -136,6 +136,9 @@ def load_recording(path: str | os.PathLike, required: Sequence[str] = REQUIRED_C
         With one line naming the file, the line or column, and what is wrong.
     """
     path = Path(path)
+    if path.suffix.lower() in (".bag", ".db3", ".mcap", ".ulg") or (path / "metadata.yaml").is_file():
+        raise RecordingError(f"{path}: a ROS bag or PX4 log, not a recording: convert it first "
+                             f"(python scripts/convert.py input={path} output=F.csv)")
     if path.is_dir():
         raise RecordingError(f"{path}: a folder, not a recording (give a .csv or .csv.gz file in it)")
     if not path.is_file():

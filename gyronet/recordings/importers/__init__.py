@@ -43,7 +43,7 @@ IMPORTERS: dict[str, Callable[..., Recording]] = {
     "csv": import_contract,
 }
 FORMATS = tuple(IMPORTERS)
-# enough digits for microsecond time stamps since boot (up to ~11 days) to stay distinct
+# the values' digits; time_s is written exactly (repr): Unix time with microseconds needs 16 digits
 FLOAT_FORMAT = "%.12g"
 
 
@@ -67,7 +67,7 @@ def detect_format(path: str | os.PathLike) -> str:
     text = read_text(path)
     _, header = read_header_line(path, text)
     delimiter, _ = sniff(text)
-    names = header.split(delimiter)
+    names = [n.strip().strip('"') for n in header.split(delimiter)]  # a quoted header, as the loader reads it
     tool = other_tool(names)
     if tool is not None:
         return tool
@@ -130,7 +130,8 @@ def convert(path: str | os.PathLike, output: str | os.PathLike, format: str = "a
         What was written.
     """
     recording = import_recording(path, format, **options)
-    write_recording(output, recording.columns, recording.meta, float_format=FLOAT_FORMAT)
+    columns = {**recording.columns, "time_s": [repr(t) for t in recording.time_s.tolist()]}  # every digit
+    write_recording(output, columns, recording.meta, float_format=FLOAT_FORMAT)
     log.info("wrote %s: %d samples, columns %s", output, len(recording), ", ".join(recording.columns))
     return recording
 

@@ -192,8 +192,11 @@ def _plan(path: Path, name: str, gyro_unit: str):
     if role in ("sensor_id", "counter", "frame"):
         return role, None, _same
     if role in ("gyro", "angvel"):
-        if not unit and gyro_unit != "auto":
-            unit = gyro_unit.replace(" ", "").lower()
+        given = gyro_unit.replace(" ", "").lower()
+        if gyro_unit != "auto" and unit and unit != given:  # OpenZen writes (deg/s) whatever the sensor sends
+            log.warning("%s: column %r: lpms.gyro_unit=%s overrides the header's unit", path.name, name, gyro_unit)
+        if gyro_unit != "auto":
+            unit = given
         if unit not in _RATE_DPS:
             hint = "; pass lpms.gyro_unit=deg/s or rad/s" if not unit else ""
             raise wrong("deg/s or rad/s" + hint)
@@ -224,10 +227,12 @@ def _plan(path: Path, name: str, gyro_unit: str):
 
 
 def _check_plan(path: Path, names: list[str], plan: list) -> None:
+    # a column the importer does not recognise keeps its name: a contract CSV's own names are no LPMS log
+    known = [t for role, t, _ in plan if t is not None and role != "other"]
     targets = [t for _, t, _ in plan if t is not None]
     needed = {"time_s": "TimeStamp (s)", "temp_c": "Temperature (degC)", "gyro_x_dps": "GyroX (deg/s)",
               "gyro_y_dps": "GyroY (deg/s)", "gyro_z_dps": "GyroZ (deg/s)"}
-    missing = [label for key, label in needed.items() if key not in targets]
+    missing = [label for key, label in needed.items() if key not in known]
     if missing:
         raise RecordingError(f"{path}: not a usable LPMS log: missing {', '.join(missing)} "
                              f"(header has {', '.join(names)})")
@@ -239,6 +244,11 @@ def _check_plan(path: Path, names: list[str], plan: list) -> None:
 def _choose_sensor(path: Path, ids: np.ndarray, wanted: int | None) -> float | None:
     present = sorted({float(v) for v in ids[np.isfinite(ids)]})
     if wanted is not None:
+        try:
+            wanted = int(wanted)
+        except (TypeError, ValueError):
+            raise RecordingError(f"lpms.sensor_id must be a SensorId number (the file has {_ids(present)}), "
+                                 f"got {wanted!r}") from None
         if float(wanted) not in present:
             raise RecordingError(f"{path}: no SensorId {wanted} (the file has {_ids(present)})")
         return float(wanted)

@@ -31,9 +31,8 @@ from pathlib import Path
 
 import numpy as np
 
-from gyronet.recordings.data import GYRO_COLUMNS, Recording
+from gyronet.recordings.data import BREAK_FACTOR, GYRO_COLUMNS, Recording
 from gyronet.errors import GyronetError, RecordingError
-from gyronet.recordings.data import BREAK_FACTOR
 from gyronet.recordings.importers._common import ACC_COLUMNS, STANDARD_GRAVITY_M_S2, degrees, finish
 
 log = logging.getLogger(__name__)
@@ -205,10 +204,11 @@ def _read_imu(path: Path, reader, topic: str, stamp: str) -> tuple[np.ndarray, d
         frame_id = frame_id or msg.header.frame_id
     if n == 0:
         raise RecordingError(f"{path}: topic {topic} has no messages")
-    stamp_ns = _checked_stamps(path, topic, stamps[:n], stamp)
+    stamped = _checked_stamps(path, topic, stamps[:n], stamp)
+    stamp_ns, table = stamps[:n][stamped], table[:n][stamped]
     order = np.argsort(stamp_ns, kind="stable")
     reordered = int(np.count_nonzero(order != np.arange(len(order))))
-    stamp_ns, table = stamp_ns[order], table[:n][order]
+    stamp_ns, table = stamp_ns[order], table[order]
     origin_ns = int(stamp_ns[0])
     # time_s = (stamp - first stamp) / 1e9, exact in integers before the one division
     columns = {"time_s": (stamp_ns - origin_ns).astype(np.float64) * 1e-9}
@@ -227,14 +227,19 @@ def _read_imu(path: Path, reader, topic: str, stamp: str) -> tuple[np.ndarray, d
     meta = {"sensor": f"ROS {topic}" + (f" (frame {frame_id})" if frame_id else ""), "ros_imu_topic": topic,
             "ros_frame_id": frame_id or None, "ros_stamp": stamp, "stamp_origin_ns": origin_ns,
             "time_base": f"{stamp} stamp minus stamp_origin_ns, s", "lost_samples": lost, "reordered": reordered}
+    meta["zero_stamps"] = int(n - len(stamp_ns))
     return stamp_ns, columns, meta
 
 
 def _checked_stamps(path: Path, topic: str, stamp_ns: np.ndarray, stamp: str) -> np.ndarray:
+    """Which messages have a stamp: a zero header stamp among real ones (a driver's first message) is none."""
     if stamp == "header" and not np.any(stamp_ns):
         raise RecordingError(f"{path}: every header stamp on {topic} is zero (the driver does not fill it); "
                              "pass rosbag.stamp=bag to use the time each message was recorded")
-    return stamp_ns
+    stamped = stamp_ns != 0 if stamp == "header" else np.ones(len(stamp_ns), dtype=bool)
+    if not stamped.all():
+        log.warning("%s: %s: %d message(s) with a zero header stamp left out", path.name, topic, np.sum(~stamped))
+    return stamped
 
 
 def _lost_samples(stamp_ns: np.ndarray) -> tuple[int, int]:
@@ -257,9 +262,10 @@ def _read_temperature(path: Path, reader, topic: str, stamp: str) -> tuple[np.nd
         values.append(msg.temperature if hasattr(msg, "temperature") else msg.data)
     if not stamps:
         raise RecordingError(f"{path}: temperature topic {topic} has no messages; {TEMP_ADVICE}")
-    stamp_ns = _checked_stamps(path, topic, np.asarray(stamps, dtype=np.int64), stamp)
-    order = np.argsort(stamp_ns, kind="stable")
-    return stamp_ns[order], np.asarray(values, dtype=np.float64)[order]
+    stamp_ns, values = np.asarray(stamps, dtype=np.int64), np.asarray(values, dtype=np.float64)
+    stamped = _checked_stamps(path, topic, stamp_ns, stamp)
+    order = np.argsort(stamp_ns[stamped], kind="stable")
+    return stamp_ns[stamped][order], values[stamped][order]
 
 
 def _join_causal(path: Path, imu_ns: np.ndarray, temp_ns: np.ndarray, temp_c: np.ndarray,
