@@ -190,6 +190,16 @@ def test_lpms_rad_per_s_is_converted_and_bad_rows_are_counted(tmp_path):
     assert rec.meta["dropped_detail"] == "nan:1;duplicate_time:1"
 
 
+def test_stamps_too_coarse_for_the_rate_are_named(tmp_path, caplog):
+    """OpenMAT's float32 time stamp after hours repeats at 400 Hz: a third of the rows went with an INFO line."""
+    rows = lpms_rows(60, fs_hz=400.0)
+    rows = [", ".join([cells[0], f"{float(cells[1]) // 0.005 * 0.005:.4f}", *cells[2:]])
+            for cells in (row.split(", ") for row in rows)]  # stamps on a 5 ms grid
+    with caplog.at_level("WARNING", logger="gyronet.recordings.importers"):
+        rec = import_recording(write_lpms(tmp_path / "coarse.csv", LPMS_LATER, rows), "lpms")
+    assert len(rec) == 30 and "30 of 60 rows repeat the time stamp before them" in caplog.text
+
+
 def test_lpms_two_sensors_need_a_sensor_id(tmp_path):
     rows = [r for pair in zip(lpms_rows(sensor=1, gyro=0.5), lpms_rows(sensor=2, gyro=-3.0)) for r in pair]
     src = write_lpms(tmp_path / "two.csv", LPMS_LATER, rows)

@@ -206,6 +206,10 @@ def finish(path: Path, columns: Mapping[str, np.ndarray], meta: Mapping[str, obj
             f"(previous {time_s[row - 1]!r} s); the file mixes records or is not in time order")
     keep = np.concatenate([[True], step_s > 0])
     counts["duplicate_time"] = counts.get("duplicate_time", 0) + int((~keep).sum())
+    if (~keep).sum() > 0.01 * len(keep):  # not a stray repeat: stamps too coarse for the rate (a float32 clock)
+        log.warning("%s: %d of %d rows repeat the time stamp before them and are dropped: the stamps are too "
+                    "coarse for the rate (a float32 time after hours?); the rate written from them is wrong",
+                    path.name, int((~keep).sum()), len(keep))
     columns = {k: v[keep] for k, v in columns.items()}
     if len(columns["time_s"]) == 0:
         raise RecordingError(f"{path}: no usable sample (every row was dropped: {_detail(counts)})")
