@@ -12,9 +12,9 @@ columns' lags (60, 300, 1200, 3600 s) are a coarser grid than the temperature's.
 the best family's (``tie_z`` standard errors of their paired difference on the same held-out
 blocks, clustered by span, :mod:`.ties`; or less than 1 % of the best score), and short of it
 by no more than a fifth, explain the held-out residual equally well. Of such a group the
-simplest is tried first, and of equal freedom a measured one (``complexity``: a recording column as it is, ageing or a warm-up; then a
-recording column through a lag; then what is derived from the temperature, a lag of ``temp_c``
-last) and the others are its ``alternatives``.
+simplest is tried first, and of equal freedom a measured one (``complexity``: a recording
+column as it is, ageing or a warm-up; then a recording column through a lag; then what is
+derived from the temperature, a lag of ``temp_c`` last) and the others are its ``alternatives``.
 
 **What a derived effect approximates.** When the effect kept is derived (a lag of ``temp_c``, a
 warm-up, ...) and a measured column scored nearly as well (within ``near`` of its score) and
