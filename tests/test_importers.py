@@ -190,6 +190,21 @@ def test_lpms_rad_per_s_is_converted_and_bad_rows_are_counted(tmp_path):
     assert rec.meta["dropped_detail"] == "nan:1;duplicate_time:1"
 
 
+def test_an_lpms_log_re_saved_by_a_spreadsheet_or_quoted_reads_the_same(tmp_path):
+    rows = lpms_rows(pressure=101.3)
+    plain = import_recording(write_lpms(tmp_path / "plain.csv", LPMS_LATER, rows), "lpms")
+    german = [";".join(c.replace(".", ",") for c in row.split(", ")) for row in rows]  # a German Excel's save
+    quoted = [",".join(f'"{c}"' for c in row.split(", ")) for row in rows]  # Python's csv.QUOTE_ALL
+    for name, header, body in (("excel.csv", LPMS_LATER.replace(", ", ";"), german),
+                               ("quoted.csv", ",".join(f'"{n}"' for n in LPMS_LATER.split(", ")), quoted)):
+        src = write_lpms(tmp_path / name, header, body)
+        assert detect_format(src) == "lpms"
+        rec = import_recording(src)
+        assert set(rec.columns) == set(plain.columns), name
+        for column in plain.columns:
+            np.testing.assert_allclose(rec.columns[column], plain.columns[column], rtol=1e-12, err_msg=name)
+
+
 def test_stamps_too_coarse_for_the_rate_are_named(tmp_path, caplog):
     """OpenMAT's float32 time stamp after hours repeats at 400 Hz: a third of the rows went with an INFO line."""
     rows = lpms_rows(60, fs_hz=400.0)

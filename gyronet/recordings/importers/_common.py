@@ -53,8 +53,9 @@ def read_header_line(path: Path, text: bytes | None = None) -> tuple[int, str]:
     return line_no, header
 
 
-def read_numeric_table(path: Path, header_line: int, names: list[str]) -> tuple[dict[str, np.ndarray], int]:
-    """Read the rows under a header as float64 columns.
+def read_numeric_table(path: Path, header_line: int, names: list[str], delimiter: str = ",",
+                       decimal: str = ".") -> tuple[dict[str, np.ndarray], int]:
+    """Read the rows under a header as float64 columns (quoted cells as pandas reads them).
 
     A non-numeric cell raises a ``RecordingError`` naming its line and column, except on the last
     line: a logger stopped mid-write leaves a cut line, which becomes NaN (dropped and counted later).
@@ -69,7 +70,7 @@ def read_numeric_table(path: Path, header_line: int, names: list[str]) -> tuple[
     import pandas as pd
 
     text = read_text(path)
-    options = dict(skiprows=header_line, header=None, names=names, skipinitialspace=True,
+    options = dict(skiprows=header_line, header=None, names=names, skipinitialspace=True, sep=delimiter, decimal=decimal,
                    skip_blank_lines=True, encoding="utf-8", encoding_errors="replace", comment=None,
                    index_col=False)
     with warnings.catch_warnings():

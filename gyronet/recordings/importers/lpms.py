@@ -48,8 +48,9 @@ import numpy as np
 
 from gyronet.recordings.data import GAP_FACTOR, GYRO_COLUMNS, REQUIRED_COLUMNS, Recording
 from gyronet.errors import RecordingError
+from gyronet.recordings.csvtable.text import sniff
 from gyronet.recordings.importers._common import (STANDARD_GRAVITY_M_S2, fahrenheit_to_c, finish, read_header_line,
-                                       read_numeric_table, snake)
+                                       read_numeric_table, read_text, snake)
 
 log = logging.getLogger(__name__)
 
@@ -91,12 +92,13 @@ def import_lpms(path: str | os.PathLike, sensor_id: int | None = None, gyro_unit
     """
     path = Path(path)
     header_line, header = read_header_line(path)
-    names = [n.strip() for n in header.split(",")]
+    delimiter, decimal = sniff(read_text(path))  # a log re-saved by a spreadsheet: ';' and a decimal comma
+    names = [n.strip().strip('"') for n in header.split(delimiter)]
     while names and not names[-1]:
         names.pop()
     plan = [_plan(path, name, gyro_unit) for name in names]
     _check_plan(path, names, plan)
-    raw, first_line = read_numeric_table(path, header_line, names)
+    raw, first_line = read_numeric_table(path, header_line, names, delimiter, decimal)
 
     rows = np.ones(len(raw[names[0]]), dtype=bool)
     ids = [n for n, (role, *_) in zip(names, plan) if role == "sensor_id"]
