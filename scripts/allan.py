@@ -19,7 +19,7 @@ from gyronet.model import recalibration
 from gyronet.recordings.data import ALLAN_COLUMNS, load_recording
 from gyronet.errors import GyronetError
 from gyronet.recordings.importers.rosbag import is_rosbag, read_rates
-from gyronet.recordings.rate_watch import RateWatch
+from gyronet.recordings.rate_watch import first_rate_change
 from gyronet.bundle.offline import SIGMA_COLUMNS, STILL_S_KEY
 from gyronet.training.dataset import static_rate_dps
 from gyronet.training.sigma_table import allan_sigma_summary
@@ -49,9 +49,8 @@ def _refuse_rate_change(recording, source) -> None:
     if len(recording) < 3:
         return
     fs_hz = 1.0 / float(np.median(np.diff(recording.time_s[:201])))  # the rate it starts at
-    changes = [c for c in RateWatch(fs_hz).scan(recording.time_s) if abs(c.new_hz / fs_hz - 1.0) > 0.05]
-    if changes:
-        change = changes[0]
+    change = first_rate_change(recording.time_s, fs_hz)
+    if change is not None:
         raise GyronetError(f"{source}: near time_s={change.since_time_s:.6g} the sampling rate changes from "
                            f"{change.old_hz:.4g} Hz to {change.new_hz:.4g} Hz; an Allan curve needs one rate: split "
                            "the file there and analyse each part")

@@ -224,3 +224,9 @@ class RateWatch:
         self._times.extend(time_s[-(SPAN + 1):].tolist())
         self._votes.extend(vote[has_span][-VOTES:].tolist())
         self._vote_times.extend(time_s[has_span][-VOTES:].tolist())
+
+
+def first_rate_change(time_s: np.ndarray, fs_hz: float) -> RateChange | None:
+    """The first change in a record's stamps to a rate more than ``TOLERANCE`` off ``fs_hz``, or None (a file
+    that needs one rate: the Kalman stage's identification, an Allan curve)."""
+    return next((c for c in RateWatch(fs_hz).scan(time_s) if abs(c.new_hz / fs_hz - 1.0) > TOLERANCE), None)

@@ -64,11 +64,10 @@ def kalman_stage(kalman_cfg: Mapping[str, Any] | None, model: torch.nn.Module, d
 
 def _refuse_rate_changes(recording: Any, fs_hz: float) -> None:
     """The Kalman stage is identified per sample at one rate: a rate change in the record is one line."""
-    from gyronet.recordings.rate_watch import RateWatch
+    from gyronet.recordings.rate_watch import first_rate_change
 
-    changes = [c for c in RateWatch(fs_hz).scan(recording.time_s) if abs(c.new_hz / fs_hz - 1.0) > RATE_TOLERANCE]
-    if changes:
-        change = changes[0]
+    change = first_rate_change(recording.time_s, fs_hz)
+    if change is not None:
         raise GyronetError(f"{recording.path}: near {recording.line_of(change.since_row)} (time_s="
                            f"{change.since_time_s:.6g}): the sampling rate changes from {change.old_hz:.4g} Hz to "
                            f"{change.new_hz:.4g} Hz, and the Kalman stage is identified per sample at one rate; "
