@@ -86,6 +86,15 @@ def compensate_as_deployed(compensator: Compensator, recording: Recording, resam
     return out
 
 
+def log_what_it_rests_on(compensator: Compensator) -> None:
+    """A deployment's first lines (offline and live alike): how far to trust its error bar, and its Kalman stage."""
+    if compensator.error_bar is not None:
+        bar = compensator.error_bar
+        (log.warning if bar.narrow_axes() else log.info)(bar.trust_line())
+    if compensator.kalman is not None:
+        log.info(kalman_line(compensator))
+
+
 def kalman_line(compensator: Compensator) -> str | None:
     """One line for a deployment's log when the bundle has a Kalman stage: it low-passes, and by how much."""
     if compensator.kalman is None:
@@ -108,11 +117,7 @@ def compensate_file(bundle_dir: str | Path, input_path: str | Path, output_path:
     refuse_overwriting(input_path, output_path)
     compensator = Compensator.load(bundle_dir)
     compensator.use_startup(**dict(startup or {}))
-    if compensator.error_bar is not None:
-        bar = compensator.error_bar
-        (log.warning if bar.narrow_axes() else log.info)(bar.trust_line())
-    if compensator.kalman is not None:
-        log.info(kalman_line(compensator))
+    log_what_it_rests_on(compensator)
     recording = load_recording(input_path)
     out = compensate_as_deployed(compensator, recording, resample)
     still_s = 0.0 if compensator.startup is None else compensator.startup.still_s

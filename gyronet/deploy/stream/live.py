@@ -25,7 +25,7 @@ from pathlib import Path
 from typing import Any, Callable, Iterator, Mapping
 
 from gyronet.bundle.compensator import Compensator
-from gyronet.bundle.offline import kalman_line
+from gyronet.bundle.offline import log_what_it_rests_on
 from gyronet.deploy.stream import Fault, FaultCounter, LpBusLayout, SampleCheck, make_parser
 from gyronet.deploy.stream.allocator import fix_mmap_threshold
 from gyronet.deploy.stream.chunk import RATE_PROBE_SAMPLES, ChunkWriter, RateGate, n_rows
@@ -112,11 +112,7 @@ def run_stream(bundle_dir: str | Path, port: str, output: str | Path, protocol: 
     compensator = Compensator.load(bundle_dir)
     compensator.use_small_chunks()  # a lone frame in plain floats, not ~30 TorchScript ops
     compensator.use_startup(**dict(startup or {}))
-    if compensator.error_bar is not None:
-        bar = compensator.error_bar
-        (log.warning if bar.narrow_axes() else log.info)(bar.trust_line())
-    if compensator.kalman is not None:
-        log.info(kalman_line(compensator))
+    log_what_it_rests_on(compensator)
     compensator.reset()
     check = SampleCheck(**dict(clock or {}))
     parser = make_parser(protocol, layout, required=compensator.input_columns, check=check)
