@@ -107,13 +107,14 @@ class SubMeans:
         self.previous: tuple | None = None  # the last closed sub-block: (index, mean, samples)
         self.squares, self.pairs = [0.0, 0.0, 0.0], 0
 
-    def add_row(self, index: int, rate_dps: list) -> None:
-        """One sample of sub-block ``index`` (since the blocks' start, in ``SUB_S``), in plain floats."""
+    def add_row(self, index: int, rate_dps: list, count: int = 1) -> None:
+        """One sample of sub-block ``index`` (since the blocks' start, in ``SUB_S``), in plain floats (or the
+        sum of ``count`` of them)."""
         if index != self.index:
             self.close()
             self.index = index
         self.sums = [total + v for total, v in zip(self.sums, rate_dps)]
-        self.count += 1
+        self.count += count
 
     def add(self, index: np.ndarray, rate_dps: np.ndarray) -> None:
         """Samples (n,) and (n, 3) in time order: ``add_row`` on each, to rounding."""
@@ -123,11 +124,7 @@ class SubMeans:
         counts = np.diff(np.append(starts, len(index)))
         for sub, total, count in zip(index[starts].tolist(), np.add.reduceat(rate_dps, starts, axis=0).tolist(),
                                      counts.tolist()):
-            if sub != self.index:
-                self.close()
-                self.index = sub
-            self.sums = [a + b for a, b in zip(self.sums, total)]
-            self.count += count
+            self.add_row(sub, total, count)
 
     def close(self) -> None:
         """End the open sub-block; pair it with the one before when both lie in one block, side by side, and

@@ -198,16 +198,16 @@ class ChunkWriter:
     def _out_of_range(self, temp_c: Sequence[float], time_s: Sequence[float]) -> None:
         """Count the samples outside the trained range; warn once an excursion (a minute apart), each at debug level."""
         self.n_out_of_range += len(temp_c)
+        debug = log.isEnabledFor(logging.DEBUG)
         for temp, time in zip(temp_c, time_s):
             if self._outside_s is None or not 0.0 <= time - self._outside_s < 60.0:  # a new excursion (or clock)
                 low, high = self.compensator.temp_range_c
                 log.warning("%s: temp_c=%.3f degC at %.3f s is outside the trained range (%.2f .. %.2f degC): flagged "
                             "out_of_range, the model holds its edge value; the rest of this excursion is counted in "
                             "the summary", self.port, temp, time, low, high)
-            self._outside_s = time
-        if log.isEnabledFor(logging.DEBUG):
-            for temp, time in zip(temp_c, time_s):
+            elif debug:
                 log.debug("temp_c=%.3f at %.3f s outside the trained range", temp, time)
+            self._outside_s = time
 
 
 def n_rows(samples: Sequence[Sample | SampleBlock]) -> int:
