@@ -11,11 +11,13 @@ from __future__ import annotations
 
 import contextlib
 import errno
+import gzip
 import json
 import logging
 import math
 import numbers
 import os
+import shutil
 import tempfile
 from pathlib import Path
 from typing import Any, Iterator, Mapping
@@ -39,7 +41,7 @@ class OutputError(GyronetError, OSError):
 def atomic_output(path: str | os.PathLike) -> Iterator[Path]:
     """Yield a temporary path beside ``path``; when the block ends without error, rename it to ``path``.
 
-    On any error the temporary file is removed and ``path`` is left as it was. An OSError that a
+    A ``path`` ending in ``.gz`` gets the block's file gzip-compressed, as its name promises. On any error the temporary file is removed and ``path`` is left as it was. An OSError that a
     user can act on (no space, quota, read-only, permission) becomes one :class:`OutputError`
     line naming ``path``; other exceptions pass through unchanged.
     """
@@ -55,6 +57,8 @@ def atomic_output(path: str | os.PathLike) -> Iterator[Path]:
     tmp = Path(name)
     try:
         yield tmp
+        if path.name.lower().endswith(".gz"):
+            _gzip_in_place(tmp)
         os.chmod(tmp, 0o666 & ~_UMASK)  # mkstemp's 0600 is for the temporary file only
         os.replace(tmp, path)
     except OSError as err:
@@ -64,6 +68,17 @@ def atomic_output(path: str | os.PathLike) -> Iterator[Path]:
         tmp.unlink(missing_ok=True)
         raise
     log.debug("wrote %s", path)
+
+
+def _gzip_in_place(path: Path) -> None:
+    """Replace ``path``'s bytes with their gzip stream (level 6: a tenth of the CPU of 9, a few % larger)."""
+    packed = path.with_name(path.name + ".gz")
+    try:
+        with open(path, "rb") as source, gzip.open(packed, "wb", compresslevel=6) as target:
+            shutil.copyfileobj(source, target, 1 << 20)
+        os.replace(packed, path)
+    finally:
+        packed.unlink(missing_ok=True)
 
 
 def refuse_overwriting(input_path: str | os.PathLike, output_path: str | os.PathLike) -> None:

@@ -104,6 +104,37 @@ def test_block_means_and_truth_path(tmp_path):
     means = block_means(np.column_stack([time_s, -time_s]), time_s, 60.0)
     np.testing.assert_allclose(means[:, 0], [29.95, 89.95])
     assert truth_path(tmp_path / "F.csv").name == "F.truth.csv"
+    assert truth_path(tmp_path / "F.csv.gz").name == "F.truth.csv.gz"
+
+
+def test_a_gz_output_name_is_gzip_compressed_by_every_whole_file_writer(tmp_path):
+    from gyronet.bundle.offline import write_compensated
+    from gyronet.recordings.fastcsv import write_csv
+
+    cols = _columns()
+    finite = {k: v for k, v in cols.items() if k != "vdd_v"}
+    written = [write_recording(tmp_path / "r.csv.gz", cols, {"fs_hz": 10}),
+               write_csv(tmp_path / "f.csv.gz", finite, {"fs_hz": 10}),
+               write_compensated(tmp_path / "c.csv.gz", {**finite, "gyro_x_dps": np.r_[np.nan, cols["gyro_x_dps"][1:]]},
+                                 tmp_path)]
+    for path in written:
+        with gzip.open(path) as handle:  # a gzip stream, not text under a .gz name
+            back = pd.read_csv(handle, comment="#")
+        np.testing.assert_allclose(back["time_s"], cols["time_s"])
+    assert list(tmp_path.glob(".*")) == []  # no temporary file left behind
+    np.testing.assert_allclose(load_recording(written[0]).columns["vdd_v"], cols["vdd_v"], rtol=1e-8)
+
+
+def test_a_stream_refuses_a_gz_output_name_it_could_not_keep(tmp_path):
+    from gyronet.deploy.stream.output import LiveWriter
+    from gyronet.deploy.stream.record import _RecordingFile
+    from gyronet.deploy.stream.summary import OutputError
+
+    with pytest.raises(OutputError, match="line by line.*gzip the file afterwards"):
+        LiveWriter(tmp_path / "live.csv.gz", tmp_path)
+    with pytest.raises(OutputError, match="line by line"):
+        _RecordingFile(tmp_path / "rec.CSV.GZ", ["time_s"], {})
+    assert list(tmp_path.iterdir()) == []
 
 
 def test_compensated_files_keep_twelve_significant_digits(tmp_path):

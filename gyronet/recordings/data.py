@@ -16,6 +16,7 @@ from typing import Iterable, Mapping, Sequence
 import numpy as np
 import pandas as pd
 
+from gyronet.atomic import atomic_output
 from gyronet.recordings.csvtable import parse_table
 from gyronet.errors import RecordingError
 
@@ -161,23 +162,23 @@ def _check_time(path: Path, time_s: np.ndarray, lines: np.ndarray) -> None:
 
 def write_recording(path: str | os.PathLike, columns: Mapping[str, Iterable[float]],
                     meta: Mapping[str, object] | None = None, float_format: str = "%.9g") -> Path:
-    """Write columns (and ``# key=value`` metadata lines) as a CONTRACT.md CSV."""
+    """Write columns and ``# key=value`` lines as a CONTRACT.md CSV, whole or not at all; gzip for ``.gz``."""
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
     frame = pd.DataFrame({k: np.asarray(v) for k, v in columns.items()})
     buffer = io.StringIO()
     for key, value in (meta or {}).items():
         buffer.write(f"# {key}={value}\n")
     frame.to_csv(buffer, index=False, float_format=float_format, lineterminator="\n")
-    path.write_text(buffer.getvalue(), encoding="utf-8")
+    with atomic_output(path) as tmp:
+        tmp.write_text(buffer.getvalue(), encoding="utf-8")
     return path
 
 
 def truth_path(path: str | os.PathLike) -> Path:
-    """Where the simulator writes the ground truth of ``path``: ``F.csv`` -> ``F.truth.csv``."""
-    path = Path(path)
-    name = path.name[:-4] if path.name.endswith(".csv") else path.name
-    return path.with_name(name + TRUTH_SUFFIX)
+    """Where the simulator writes the ground truth of ``path``: ``F.csv`` -> ``F.truth.csv`` (``.csv.gz`` alike)."""
+    path, gz = Path(path), ".gz" if str(path).endswith(".csv.gz") else ""
+    name = path.name[:-4 - len(gz)] if path.name.endswith(".csv" + gz) else path.name
+    return path.with_name(name + TRUTH_SUFFIX + gz)
 
 
 def load_truth(path: str | os.PathLike) -> Recording:

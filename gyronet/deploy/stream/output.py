@@ -27,7 +27,7 @@ except ImportError:  # an optional speed-up: repr alone writes the same bytes
 
 from gyronet.bundle.compensator import Compensated
 from gyronet.bundle.offline import compensated_meta, output_columns
-from gyronet.deploy.stream.summary import OutputError
+from gyronet.deploy.stream.summary import OutputError, refuse_gzip_name
 
 log = logging.getLogger(__name__)
 
@@ -82,6 +82,7 @@ class LiveWriter:
         self.names = output_names()
         self.n_rows = 0
         self._size = 0
+        refuse_gzip_name(self.path)
         try:
             self.path.parent.mkdir(parents=True, exist_ok=True)
             self._fd: int | None = os.open(self.path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o666)

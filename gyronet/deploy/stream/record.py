@@ -27,7 +27,7 @@ from gyronet.deploy.stream.events import FaultCounter, Sample, SampleCheck
 from gyronet.deploy.stream.lpbus_link import SensorError
 from gyronet.deploy.stream.lpbus_probe import LayoutError
 from gyronet.deploy.stream.lpbus_setup import LpBusSetup, start_lpbus
-from gyronet.deploy.stream.summary import OutputError, write_summary
+from gyronet.deploy.stream.summary import OutputError, refuse_gzip_name, write_summary
 from gyronet.deploy.stream.reader import open_port_or_fail, read_samples
 from gyronet.deploy.stream.signals import stop_on_signals
 
@@ -168,6 +168,7 @@ class _RecordingFile:
     def __init__(self, path: str | Path, columns: list[str], meta: Mapping[str, str]):
         self.path, self.n_rows = Path(path), 0
         self.fs_hz = float(meta["fs_hz"]) if "fs_hz" in meta else None
+        refuse_gzip_name(self.path)
         try:
             self.path.parent.mkdir(parents=True, exist_ok=True)
             self._fd = os.open(self.path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)

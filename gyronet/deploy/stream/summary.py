@@ -36,3 +36,10 @@ def write_summary(path: str | Path, summary: dict) -> None:
         except OSError:  # its folder is not there either
             pass
         raise OutputError(f"{path}: cannot write the summary ({err.strerror or err})") from None
+
+
+def refuse_gzip_name(path: Path) -> None:
+    """A stream's rows reach the disk line by line, as they come: a ``.gz`` name would promise a compression it lacks."""
+    if path.name.lower().endswith(".gz"):
+        raise OutputError(f"{path}: a stream is written line by line and cannot be gzip-compressed; give a .csv "
+                          "name and gzip the file afterwards (a .csv.gz reads back as it is)")
