@@ -1,4 +1,6 @@
 """A thermal lag per axis (gyronet.training.axis_lag): lagged features, the network reading them per axis, the screen."""
+import logging
+
 import numpy as np
 import pytest
 import torch
@@ -148,6 +150,18 @@ def test_the_screen_finds_the_lagged_axis_and_leaves_the_others(lagged_sensor_cs
     assert lagged_model.lag_by_axis_s == chosen
     plain = RBFNet(data.n_features, 3, 4)  # without candidates nothing changes
     assert with_axis_lags(data, None, plain) == (data, plain)
+
+
+def test_the_lagged_copy_of_the_data_does_not_say_the_data_s_lines_again(lagged_sensor_csv, caplog):
+    from gyronet.training.axis_lag import with_features
+    from gyronet.training.dataset import DriftData
+
+    with caplog.at_level("INFO"):
+        data = DriftData(str(lagged_sensor_csv))
+        wide = with_features(data, SPECS)
+    assert wide.n_features == len(SPECS) and len(wide.train) == len(data.train)
+    assert sum("training data" in r.getMessage() for r in caplog.records) == 1
+    assert logging.getLogger("gyronet").level == logging.NOTSET  # put back
 
 
 def test_the_rate_only_control_tells_a_thermal_lag_from_a_smoother_rate(lagged_sensor_csv):
