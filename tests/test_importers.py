@@ -484,6 +484,16 @@ def test_spreadsheet_dialects_are_read_as_csv_recordings(tmp_path, name):
     np.testing.assert_array_equal(back.gyro_dps, out.gyro_dps)
 
 
+@pytest.mark.parametrize("delimiter", [";", "\t"])
+def test_a_text_cell_with_a_comma_does_not_make_the_decimals_commas(tmp_path, delimiter):
+    text = _dialect(delimiter).splitlines()
+    text = [text[0], text[1] + delimiter + "note", *(row + delimiter + '"ok, stable"' for row in text[2:])]
+    src = tmp_path / "noted.csv"
+    src.write_text("\n".join(text) + "\n")
+    rec = import_recording(src, "csv")
+    np.testing.assert_array_equal(np.column_stack([rec.time_s, rec.temp_c, rec.gyro_dps]), CONTRACT_ROWS)
+
+
 def test_commands_point_a_semicolon_file_to_convert(tmp_path):
     src = tmp_path / "semi.csv"
     src.write_bytes(DIALECTS["decimal_comma"])

@@ -181,13 +181,23 @@ def other_tool(names: Sequence[str]) -> str | None:
     return None
 
 
+_COMMA_NUMBER = re.compile(r"[+-]?\d*,\d+(?:[eE][+-]?\d+)?")
+_DOT_NUMBER = re.compile(r"[+-]?\d*\.\d+(?:[eE][+-]?\d+)?")
+
+
 def sniff(raw: bytes) -> tuple[str, str]:
     """(delimiter, decimal mark) of a table: ``;`` or tab when the header has no comma, and a
-    decimal comma when such a table has commas in its first rows (``1,5;2,25``)."""
+    decimal comma when such a table's first rows hold more numbers like ``1,5`` than like ``1.5``
+    (a text cell "ok, stable" is not a number)."""
     head = raw[:65536].decode("utf-8", "replace")
     lines = [ln for ln in head.split("\n") if ln.strip() and not ln.lstrip().startswith("#")]
     if not lines or "," in lines[0]:
         return ",", "."
     delimiter = ";" if ";" in lines[0] else "\t" if "\t" in lines[0] else ","
-    decimal = "," if delimiter != "," and any("," in ln for ln in lines[1:20]) else "."
+    if delimiter == ",":
+        return ",", "."
+    cells = [c.strip().strip('"') for ln in lines[1:20] for c in ln.split(delimiter)]
+    commas = sum(bool(_COMMA_NUMBER.fullmatch(c)) for c in cells)
+    dots = sum(bool(_DOT_NUMBER.fullmatch(c)) for c in cells)
+    decimal = "," if commas > dots else "."
     return delimiter, decimal
