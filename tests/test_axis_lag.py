@@ -90,6 +90,12 @@ def _grouped(n_inputs: int = 6):
     return net, x, y, columns
 
 
+def _in_box(net, x):
+    """Rows whose column 3 (y's temperature) lies within slot 0's box (column 0's range)."""
+    low, high = (net.x_mean[0] + net.x_std[0] * bound for bound in (net.z_low[0], net.z_high[0]))
+    return (x[:, 3] >= low) & (x[:, 3] <= high)
+
+
 def test_each_axis_is_the_network_on_its_own_columns():
     net, x, y, columns = _grouped()
     plain = RBFNet(6, 3, 6, rbf_inputs=[0], linear=True, temp_degree=3, clamp=True)
@@ -97,8 +103,9 @@ def test_each_axis_is_the_network_on_its_own_columns():
                           strict=False)
     with torch.no_grad():
         out = net(x)
+        inside = _in_box(net, x)  # y's temperature (column 3) within its slot's box: its copy not clamped
         for a, cols in enumerate(columns):
-            torch.testing.assert_close(out[:, a], plain(x[:, cols])[:, a], rtol=0, atol=0)
+            torch.testing.assert_close(out[inside, a], plain(x[:, cols])[inside, a], rtol=0, atol=0)
         torch.testing.assert_close(net.on_fixed_input(x)(), out, rtol=0, atol=0)
         scripted = torch.jit.script(net.eval())
         torch.testing.assert_close(torch.jit.freeze(scripted)(x), out, rtol=0, atol=0)
@@ -106,10 +113,31 @@ def test_each_axis_is_the_network_on_its_own_columns():
     got = np.array([one(row) for row in x.numpy().tolist()])
     np.testing.assert_allclose(got, out.numpy(), rtol=1e-12, atol=1e-12)
     # the head's least squares is each group's own: y's row is what a refit on y's columns gives
+    x, y = x[inside], y[inside]
     net.refit_head(x, y)
     plain.refit_head(x[:, columns[1]], y)
     with torch.no_grad():
         torch.testing.assert_close(net(x)[:, 1], plain(x[:, columns[1]])[:, 1], rtol=1e-9, atol=1e-12)
+
+
+def test_a_slot_holding_a_copy_of_the_temperature_holds_its_edge_value_too():
+    """y reads column 3 in slot 0 (clamped) and again in slot 3: beyond the box both hold, in every implementation."""
+    net, x, y, columns = _grouped()
+    with torch.no_grad():
+        net.linear.weight.normal_(generator=torch.Generator().manual_seed(1))  # weight on both copies
+    edge_c = float(net.x_mean[0] + net.z_high[0] * net.x_std[0])  # slot 0's box: column 0's range
+    steady = torch.zeros(4, 6, dtype=torch.float64)
+    steady[:, 3] = torch.tensor([edge_c, edge_c + 5.0, edge_c + 50.0, edge_c + 500.0])
+    scripted = torch.jit.script(net.eval())
+    one = row_model(scripted)
+    with torch.no_grad():
+        for drift in (net(steady)[:, 1], scripted(steady)[:, 1], torch.tensor([one(r)[1] for r in steady.tolist()])):
+            torch.testing.assert_close(drift, drift[:1].expand(4), rtol=0, atol=1e-12)
+        inside = x[_in_box(net, x)]  # inside the box nothing moves: the copies' shift is exactly zero
+        plain = RBFNet(6, 3, 6, rbf_inputs=[0], linear=True, temp_degree=3, clamp=True)
+        plain.load_state_dict({k: v for k, v in net.state_dict().items() if k not in ("group_columns", "axis_group")},
+                              strict=False)
+        torch.testing.assert_close(net(inside)[:, 1], plain(inside[:, columns[1]])[:, 1], rtol=0, atol=0)
 
 
 def test_axis_columns_are_checked():

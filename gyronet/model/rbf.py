@@ -9,10 +9,8 @@ Two ways to use it:
   trained box. A Gaussian fades to zero outside the data, so a plain RBF trained on a cooling run
   has no idea what heating does; the linear rate terms carry that over.
 
-The default also lets training choose each axis's capacity (``select_capacity``,
-``gyronet.training.capacity``): an axis kept at a lower level has zero Gaussian (and polynomial, and
-linear) weights in its row of the output layers. That adds no parameter and no form: the bundle's
-``model.pt`` is the same function of the same features, so an export of its state needs nothing new.
+The default also lets training choose each axis's capacity (``select_capacity``): a lower level only
+zeroes weights in the axis's row of the output layers, so an export of the state needs nothing new.
 """
 from __future__ import annotations
 
@@ -159,25 +157,27 @@ class RBFNet(nn.Module):
         """Gaussian widths in normalised input units, shape (n_centers,)."""
         return functional.softplus(self.raw_width) + self.min_width
 
-    def parts(self, x: Tensor) -> Tuple[Tensor, Tensor, Tensor]:
-        """Gaussian activations, the linear term's inputs and temperature powers 2..degree, each (n, .).
+    def parts(self, x: Tensor, g: int = 0) -> Tuple[Tensor, Tensor, Tensor]:
+        """Gaussian activations, the linear term's inputs and temperature powers 2..degree, each (n, .) (group ``g``'s ``x``).
 
         The linear term sees the normalised inputs, with temperature clamped to the training box
-        when ``clamp`` is set: outside the trained range every part holds its edge value. The
-        other inputs stay unclamped, so the rate terms carry dT/dt over to heating or cooling
-        the training never saw; at a steady temperature (dT/dt = 0, so T * dT/dt = 0) the whole
-        output holds.
+        when ``clamp`` is set, in every slot that reads it (``axis_columns``' lag slots copy it):
+        outside the trained range every part holds its edge value. The rate terms stay unclamped,
+        carrying dT/dt over to heating or cooling the training never saw; at a steady temperature
+        (dT/dt = 0, so T * dT/dt = 0) the whole output holds.
         """
-        r, z, powers = self._inputs(x)
+        r, z, powers = self._inputs(x, g)
         return self._gaussians(r), z, powers
 
-    def _inputs(self, x: Tensor) -> Tuple[Tensor, Tensor, Tensor]:
-        """The parts' inputs, none of which depends on a parameter: the Gaussians' inputs (clamped), the
-        linear term's and the temperature powers."""
+    def _inputs(self, x: Tensor, g: int = 0) -> Tuple[Tensor, Tensor, Tensor]:
+        """The parts' inputs, none of which depends on a parameter: the Gaussians' (clamped), the linear term's, the powers."""
         z = (x - self.x_mean) / self.x_std
         zc = torch.minimum(torch.maximum(z, self.z_low), self.z_high) if self.clamp else z
         if self.clamp:
             t = self.temp_index
+            if not self.identity_columns:  # the temperature's copies move with it to the edge, in their own units
+                copies = (self.group_columns[g] == self.group_columns[g][t]) & (torch.arange(self.n_inputs) != t)
+                z = torch.where(copies, z + (zc[:, t:t + 1] - z[:, t:t + 1]) * (self.x_std[t] / self.x_std), z)
             z = torch.cat([z[:, :t], zc[:, t:t + 1], z[:, t + 1:]], dim=1)
         temp = zc[:, self.temp_index:self.temp_index + 1]
         powers = torch.cat([temp.pow(k) for k in range(2, max(self.temp_degree, 2) + 1)], dim=1)
@@ -211,7 +211,7 @@ class RBFNet(nn.Module):
         a step. The buffers must not change while it is used.
         """
         with torch.no_grad():
-            inputs = [self._inputs(self.group_input(x, g)) for g in range(self.n_groups)]
+            inputs = [self._inputs(self.group_input(x, g), g) for g in range(self.n_groups)]
 
         def gaussians(r: Tensor) -> Tensor:
             if r.shape[1] == 1:
@@ -220,16 +220,16 @@ class RBFNet(nn.Module):
 
         return lambda: self.per_axis([self._output(gaussians(r), z, powers) for r, z, powers in inputs])
 
-    def basis(self, x: Tensor) -> Tensor:
-        """Every regressor the output layers combine, side by side."""
-        phi, z, powers = self.parts(x)
+    def basis(self, x: Tensor, g: int = 0) -> Tensor:
+        """Every regressor the output layers combine, side by side (group ``g``'s ``x``)."""
+        phi, z, powers = self.parts(x, g)
         return torch.cat([phi, z, powers], dim=1)
 
     def forward(self, x: Tensor) -> Tensor:
         """Drift (deg/s), shape (n, n_outputs), from features ``x`` of shape (n, n_inputs), float64."""
         outputs: List[Tensor] = []
         for g in range(self.n_groups):
-            phi, z, powers = self.parts(self.group_input(x, g))
+            phi, z, powers = self.parts(self.group_input(x, g), g)
             outputs.append(self._output(phi, z, powers))
         return self.per_axis(outputs)
 
@@ -276,10 +276,10 @@ class RBFNet(nn.Module):
         for g in range(self.n_groups):  # the axes that read the same columns share one design
             group_rows = [a for a in rows if int(self.axis_group[a]) == g]
             if group_rows:
-                self._refit_rows(self.group_input(x, g), y, ridge, level, group_rows)
+                self._refit_rows(self.group_input(x, g), y, ridge, level, group_rows, g)
 
-    def _refit_rows(self, x: Tensor, y: Tensor, ridge: float, level: int, rows: List[int]) -> None:
-        basis = self.basis(x)
+    def _refit_rows(self, x: Tensor, y: Tensor, ridge: float, level: int, rows: List[int], g: int) -> None:
+        basis = self.basis(x, g)
         n_phi, n_lin = self.n_centers, self.n_inputs
         n_pow = basis.shape[1] - n_phi - n_lin
         keep = ([level >= 3] * n_phi + [self.use_linear and level >= 1] * n_lin

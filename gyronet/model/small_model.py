@@ -64,9 +64,11 @@ def _rbf(module: torch.nn.Module, state: dict[str, np.ndarray]) -> RowModel:
     single = len(rbf_index) == 1
     gaussian_input, centers_1 = int(rbf_index[0]), centers[:, 0].copy()
 
-    def forward_all(x: list) -> list:
+    def forward_all(x: list, copies: np.ndarray | None = None) -> list:
         z = (np.array(x) - mean) / std
         zc = np.minimum(np.maximum(z, low), high) if clamp else z
+        if clamp and copies is not None and len(copies):  # slots reading the temperature too (RBFNet._inputs)
+            z[copies] = z[copies] + (zc[temp] - z[temp]) * (std[temp] / std[copies])
         z[temp] = zc[temp]
         if single:  # one Gaussian input (the default model)
             distance_sq = (zc[gaussian_input] - centers_1) ** 2
@@ -80,9 +82,11 @@ def _rbf(module: torch.nn.Module, state: dict[str, np.ndarray]) -> RowModel:
     # per-axis inputs (RBFNet.axis_columns): each group's slots read their columns, each axis its group's output
     groups = state["group_columns"].astype(int).tolist()
     axis_group = state["axis_group"].astype(int).tolist()
+    copies = [np.array([i for i, c in enumerate(columns) if c == columns[temp] and i != temp], dtype=int)
+              for columns in groups]
 
     def forward(x: list) -> list:
-        outputs = [forward_all([x[c] for c in columns]) for columns in groups]
+        outputs = [forward_all([x[c] for c in columns], own) for columns, own in zip(groups, copies)]
         return [outputs[g][a] for a, g in enumerate(axis_group)]
 
     return forward

@@ -62,13 +62,17 @@ def _rbf(module: Any) -> tuple[dict[str, Any], Callable[[np.ndarray], np.ndarray
     def reference(x: np.ndarray) -> np.ndarray:
         if p["groups"] is None:
             return one_group(x)
-        outputs = [one_group(x[:, columns]) for columns in p["groups"]]
+        outputs = [one_group(x[:, columns], columns) for columns in p["groups"]]
         return np.column_stack([outputs[g][:, a] for a, g in enumerate(p["axis_group"])])
 
-    def one_group(x: np.ndarray) -> np.ndarray:
+    def one_group(x: np.ndarray, columns: list[int] | None = None) -> np.ndarray:
         z = (x - p["mean"]) * p["inv_std"]
         zc = np.clip(z, p["low"], p["high"]) if p["clamp"] else z
-        z[:, p["t"]] = zc[:, p["t"]]
+        t = p["t"]
+        for i in [] if columns is None or not p["clamp"] else range(len(columns)):
+            if i != t and columns[i] == columns[t]:  # a lag slot reading the temperature too (RBFNet._inputs)
+                z[:, i] += (zc[:, t] - z[:, t]) * p["inv_std"][i] / p["inv_std"][t]
+        z[:, t] = zc[:, t]
         r = zc[:, p["index"]]
         phi = np.exp(((r[:, None, :] - p["centers"][None]) ** 2).sum(2) * p["neg_half_inv_w2"])
         y = p["bias"] + phi @ p["head"].T
@@ -94,6 +98,11 @@ def _rbf_c(p: dict[str, Any], prefix: str = "M_", n_out: int = 3, out: str = "dr
                   f"{{{', '.join('{' + ', '.join(map(str, g)) + '}' for g in p['groups'])}}};"
                   f"\nstatic const unsigned char {m}AXIS_GROUP[{n_out}] = {{{', '.join(map(str, p['axis_group']))}}};")
     body = body.replace("(x[i] - ", "(x_g[i] - ")
+    if p["clamp"]:  # a lag slot reading the temperature too moves with it to the edge (RBFNet._inputs)
+        t, marker = p["t"], "    /* the linear term sees temperature clamped"
+        body = body.replace(marker, f"    for (i = 0; i < {n_in}; ++i) {{\n        if (i != {t} && {m}GROUP_COLUMNS[g][i] == "
+                            f"{m}GROUP_COLUMNS[g][{t}]) z[i] += (zc[{t}] - z[{t}]) * {m}INV_STD[i] / {m}INV_STD[{t}];"
+                            f"\n    }}\n{marker}", 1)
     wrapped = ["    {", "        int g, i_g, a_g;", f"        for (g = 0; g < {n_g}; ++g) {{",
                f"            float x_g[{n_in}], y_g[{n_out}];", f"            for (i_g = 0; i_g < {n_in}; ++i_g) {{",
                f"                x_g[i_g] = x[{m}GROUP_COLUMNS[g][i_g]];", "            }", "            {",
