@@ -12,6 +12,7 @@ from _cli import CONF_DIR, command  # noqa: E402
 FORMATS = ("px4", "ardupilot", "c")
 FITS = (None, "px4", "difference")
 C_ONLY = ("prefix",)
+EXPORT_YAML = CONF_DIR / "deploy" / "export.yaml"
 PARAMS_ONLY = ("vehicle_id", "component_id", "grid_points", "temp_rate_c_per_s", "fit", "history")
 
 
@@ -27,10 +28,13 @@ def main(cfg: DictConfig) -> None:
     if cfg.device_id and cfg.format != "px4":
         raise ConfigError(f"device_id is PX4's TC_G{{n}}_ID; format={cfg.format} takes none"
                           + (" (ArduPilot matches its IMU by instance)" if cfg.format == "ardupilot" else ""))
+    if cfg.format == "ardupilot" and cfg.temp_rate_c_per_s != OmegaConf.load(EXPORT_YAML).temp_rate_c_per_s:
+        raise ConfigError("temp_rate_c_per_s sets PX4's stated error (its 1 Hz / 1 degC schedule); ArduPilot applies "
+                          "its cubic every sample: drop it, or give history=F.csv for the error on a recording")
     if cfg.format == "c" and cfg.instance:
         raise ConfigError("instance picks PX4's or ArduPilot's IMU; for C, give each IMU's compensator its own "
                           "prefix= (prefix=imu1: imu1_step, imu1_compensator.h)")
-    defaults = OmegaConf.load(CONF_DIR / "deploy" / "export.yaml")
+    defaults = OmegaConf.load(EXPORT_YAML)
     ignored = [key for key in (C_ONLY if cfg.format != "c" else PARAMS_ONLY) if cfg.get(key) != defaults.get(key)]
     if ignored:  # an option of the other kind of export would be silently ignored
         kind = "format=c" if cfg.format != "c" else "the .params formats (px4, ardupilot)"

@@ -290,6 +290,20 @@ def test_state_size_and_symbols(bundles, tmp_path):
         assert set(undefined) - {"U"} <= {"expf", "fabsf", "sqrtf", "memcpy", "memset"}
 
 
+@needs_cc
+def test_a_column_name_that_would_end_a_c_comment_still_compiles(aux_csv, tmp_path):
+    """An aux column named ``sup*/ply_v`` (a name a recording may hold) goes into the header's comments."""
+    from gyronet.model.baselines import LinearFeatures
+
+    columns = _columns(aux_csv)
+    columns["sup*/ply_v"] = columns.pop(AUX)
+    write_recording(tmp_path / "odd.csv", columns, {"fs_hz": "2"})
+    bundle = _train(tmp_path / "odd", tmp_path / "odd.csv", lambda n: LinearFeatures(n, 3),
+                    features=[{"kind": "temp"}, {"kind": "column", "source": "sup*/ply_v"}])
+    _build(bundle, tmp_path)
+    assert "sup* /ply_v" in (tmp_path / "c" / "gyronet_compensator.h").read_text()
+
+
 def test_unknown_model_class_is_one_line(bundle, tmp_path):
     """A bundle whose model is a class the generator does not know (a future PX4 polynomial) is refused in one line."""
     from gyronet.bundle.io import load_bundle, save_bundle

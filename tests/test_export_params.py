@@ -206,7 +206,8 @@ def test_an_output_that_is_not_an_export_is_never_replaced_and_ids_are_checked(p
 def test_an_option_of_the_other_kind_of_export_is_refused_not_ignored(tmp_path):
     for args, message in [(("format=c", "vehicle_id=3", "fit=px4"), "vehicle_id, fit: options of the .params formats"),
                           (("format=ardupilot", "device_id=7"), "device_id is PX4's TC_G{n}_ID; format=ardupilot"),
-                          (("format=px4", "prefix=imu1"), "prefix: an option of format=c, not of format=px4")]:
+                          (("format=px4", "prefix=imu1"), "prefix: an option of format=c, not of format=px4"),
+                          (("format=ardupilot", "temp_rate_c_per_s=5"), "temp_rate_c_per_s sets PX4's stated error")]:
         failed = run_export(tmp_path, f"model={tmp_path}", *args, f"output={tmp_path}/x.params")
         assert failed.returncode == 2 and message in failed.stderr, failed.stderr
         assert len(failed.stderr.strip().splitlines()) == 1

@@ -134,9 +134,10 @@ def write_c(bundle_dir: Path, out_dir: Path, prefix: str = PREFIX) -> dict[str, 
     values = {
         "VERSION": str(meta.get("gyronet_version", "unknown")),
         "BUNDLE": (bundle_dir.name or str(bundle_dir)).replace("*/", "* /"),  # it goes into a comment
-        "MODEL_CLASS": model.kind, "FS_HZ": repr(fs_hz), "FEATURE_NAMES": ", ".join(meta["feature_names"]),
+        "MODEL_CLASS": model.kind, "FS_HZ": repr(fs_hz),
+        "FEATURE_NAMES": ", ".join(meta["feature_names"]).replace("*/", "* /"),
         "TEMP_LOW_C": c_float(low), "TEMP_HIGH_C": c_float(high), "N_AUX": str(len(aux)),
-        "AUX_NAMES": ", ".join(aux) or "none", "HAS_KALMAN": str(int(compensator.kalman is not None)),
+        "AUX_NAMES": ", ".join(aux).replace("*/", "* /") or "none", "HAS_KALMAN": str(int(compensator.kalman is not None)),
         "STATE_FIELDS": fields, "AUX_PARAM": aux_param, "N_FEATURES": str(len(specs)),
         "GAP_S": repr(GAP_FACTOR * (1.0 / fs_hz)),  # as FeatureExtractor computes it, to the last bit
         "AUX_COPY": "\n".join(f"    v[{k + 1}] = aux[{k}];" for k in range(len(aux))),
