@@ -41,9 +41,10 @@ class OutputError(GyronetError, OSError):
 def atomic_output(path: str | os.PathLike) -> Iterator[Path]:
     """Yield a temporary path beside ``path``; when the block ends without error, rename it to ``path``.
 
-    A ``path`` ending in ``.gz`` gets the block's file gzip-compressed, as its name promises. On any error the temporary file is removed and ``path`` is left as it was. An OSError that a
-    user can act on (no space, quota, read-only, permission) becomes one :class:`OutputError`
-    line naming ``path``; other exceptions pass through unchanged.
+    A ``path`` ending in ``.gz`` gets the block's file gzip-compressed, as its name promises. On any
+    error the temporary file is removed and ``path`` is left as it was. An OSError that a user can act
+    on (no space, quota, read-only, permission) becomes one :class:`OutputError` line naming ``path``;
+    other exceptions pass through unchanged.
     """
     path = Path(path)
     try:
