@@ -23,6 +23,7 @@ from typing import Any, Callable, Mapping, Sequence
 
 import hydra
 from hydra.core.hydra_config import HydraConfig
+from hydra.experimental.callback import Callback
 from hydra.errors import (ConfigCompositionException, HydraException, InstantiationException,
                           MissingConfigException, OverrideParseException)
 from hydra.types import RunMode
@@ -117,6 +118,16 @@ def command(config_name: str, config_dir: str = "", schemas: Mapping[str, Any] |
         return main
 
     return decorate
+
+
+class SetAsideEarlierOutputs(Callback):
+    """fleet.py's Hydra callback: a unit's job moves its earlier run's outputs into ``previous/`` before it starts,
+    so a re-run that fails is not tabulated with the earlier bundle (a launch refused outright touches nothing)."""
+
+    def on_job_start(self, config: DictConfig, **kwargs: Any) -> None:
+        from gyronet.training.fleet import set_aside_outputs  # only fleet.py's jobs need it
+
+        set_aside_outputs(config.hydra.runtime.output_dir)
 
 
 # Hydra's own flags; any other --name is a habit from argparse tools

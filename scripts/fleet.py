@@ -67,7 +67,9 @@ def main() -> None:
     sys.path.insert(0, str(SCRIPTS))
     import train  # noqa: E402 -- scripts/train.py, whose Hydra app runs each unit
 
-    sys.argv = [str(SCRIPTS / "train.py"), "-m", *sweep_overrides(units, root, suffix), *rest]
+    # each job first sets its unit's earlier outputs aside: a re-run that fails is not listed with the old bundle
+    callback = "+hydra.callbacks.fleet_outputs._target_=_cli.SetAsideEarlierOutputs"
+    sys.argv = [str(SCRIPTS / "train.py"), "-m", *sweep_overrides(units, root, suffix), callback, *rest]
     status = 0
     try:
         train.main()

@@ -46,6 +46,21 @@ def test_units_are_named_after_their_files(tmp_path, monkeypatch):
         find_units("odd/*.csv")
 
 
+def test_a_unit_keeps_its_name_and_the_others_when_run_again(tmp_path, monkeypatch):
+    """A re-run of one unit named it after its own folder (the matches' common folder) and dropped the others."""
+    monkeypatch.chdir(tmp_path)
+    for name in ("units/line1/a.csv", "units/line2/b.csv"):
+        touch(tmp_path / name)
+    write_units("S", find_units("units/**/*.csv")[0])
+    units, root, _ = find_units("units/**/b.csv")  # only line2 matches: the name stays line2/b
+    assert (units, root) == ({"line2/b": "units/line2/b.csv"}, "units")
+    write_units("S", units)
+    assert json.loads((tmp_path / "S" / UNITS_FILE).read_text())["units"] == {
+        "line1/a": "units/line1/a.csv", "line2/b": "units/line2/b.csv"}
+    with pytest.raises(GyronetError, match=r"units/line2/b.csv is unit 'line2/b' in .*, here 'b'"):
+        write_units("S", find_units("units/line2/b.csv")[0])
+
+
 def test_fleet_arguments():
     pattern, spec, sweep_dir, rest = fleet_script.parse(
         ["-m", "data.path=glob(units/*.csv)", "model=poly3", "fleet.spec_range_c=[-40,85]", "hydra.sweep.dir=S"])
@@ -92,7 +107,8 @@ def test_table_of_every_unit(tmp_path):
     (tmp_path / "a" / "report.json").write_text('{"metrics": {')  # cut short
     table = fleet_table(tmp_path)
     assert table["units"]["a"]["status"] == "missing" and "unreadable report.json" in table["units"]["a"]["reason"]
-    write_units(tmp_path, {"c": "units/c.csv"})  # no unit trained: no reference range, still a table
+    (tmp_path / UNITS_FILE).write_text(json.dumps({"units": {"c": "units/c.csv"}}))  # no unit trained: no
+    # reference range, still a table
     assert fleet_table(tmp_path)["reference_range_c"] == [None, None]
     assert to_markdown(fleet_table(tmp_path)).startswith(f"Fleet {tmp_path}: 0 of 1 units trained.\n")
 
@@ -114,6 +130,19 @@ def test_bad_fleet_input_is_one_line(tmp_path):
     done = run("fleet.py", "data.path=glob(units/*.csv)", "data.pth=3", "hydra.sweep.dir=S", cwd=tmp_path)
     assert done.returncode == 2 and "data.pth" in done.stderr and "fleet:" not in done.stderr  # refused before a unit
     assert not (tmp_path / "S" / "fleet_table.md").exists()
+
+
+def test_a_failed_rerun_is_not_listed_with_the_earlier_bundle(tmp_path):
+    """The table read the earlier run's report.json as the unit's result after its re-run failed."""
+    (tmp_path / "units").mkdir()
+    (tmp_path / "units" / "a.csv").write_text("time_s,temp_c,gyro_x_dps,gyro_y_dps,gyro_z_dps\n0,20,0,0,x\n")
+    write_units(tmp_path / "S", {"a": "units/a.csv"})
+    fake_job(tmp_path / "S", "a", (0.01, 0.02, 0.03), (-40.0, 60.0))  # the earlier run, when the file was fine
+    done = run("fleet.py", "data.path=glob(units/*.csv)", "hydra.sweep.dir=S", cwd=tmp_path)
+    assert done.returncode == 2 and "Traceback" not in done.stderr
+    row = json.loads((tmp_path / "S" / "fleet_table.json").read_text())["units"]["a"]
+    assert row["status"] == "missing" and "no report.json" in row["reason"]
+    assert (tmp_path / "S" / "a" / "previous" / "compensator" / "meta.json").is_file()  # set aside, not lost
 
 
 

@@ -15,6 +15,8 @@ import glob
 import json
 import logging
 import os
+import re
+import shutil
 from pathlib import Path
 from typing import Any, Mapping, Sequence
 
@@ -27,6 +29,8 @@ log = logging.getLogger(__name__)
 UNITS_FILE = "fleet_units.json"  # written in the sweep folder before the jobs start
 SUFFIXES = (".csv.gz", ".csv")
 UNIT_KEY = "unit"  # the config key each job gets (+unit=...), also its folder (hydra.sweep.subdir)
+PREVIOUS = "previous"  # in a unit's folder: its earlier run's outputs, set aside when it runs again
+_OUTPUTS = ("report.json", "compensator", "tb")  # what a unit's job writes into its folder, besides its logs
 _UNSAFE = ("$", "'", "\\", "\n")  # would break the quoted Hydra override or start an interpolation
 
 
@@ -62,13 +66,24 @@ def find_units(pattern: str) -> tuple[dict[str, str], str, str]:
         raise GyronetError(f"{pattern!r} matches files that are not recordings of one kind ({', '.join(kinds)}); "
                            "a fleet trains on CSV recordings (all .csv or all .csv.gz): convert others first "
                            "with scripts/convert.py, or narrow the pattern")
-    root = os.path.commonpath([os.path.dirname(p) or "." for p in paths]) or "."  # '' for '.' and 'units'
+    root = pattern_root(pattern)
     units = {Path(os.path.relpath(p, root)).as_posix()[: -len(suffix)]: p for p in paths}
     bad = [p for p in [root, *units] if any(c in p for c in _UNSAFE)]
     if bad:
         raise GyronetError(f"unit path {bad[0]!r} has one of {' '.join(_UNSAFE[:3])}, which Hydra overrides "
                            "cannot carry; rename the file")
     return units, root, suffix
+
+
+def pattern_root(pattern: str) -> str:
+    """The pattern's fixed folder (before its first glob character): the same for a whole fleet and a re-run of
+    one of its units (``units/**/sn0042.csv``), where the matches' common folder would rename the unit."""
+    fixed = []
+    for part in Path(pattern).parts[:-1]:
+        if re.search(r"[*?[]", part):
+            break
+        fixed.append(part)
+    return os.path.join(*fixed) if fixed else "."
 
 
 def sweep_overrides(units: Mapping[str, str], root: str, suffix: str) -> list[str]:
@@ -80,11 +95,30 @@ def sweep_overrides(units: Mapping[str, str], root: str, suffix: str) -> list[st
 
 
 def write_units(sweep_dir: str | os.PathLike, units: Mapping[str, str]) -> Path:
-    """Record the fleet's units in the sweep folder, so the table also lists units whose job never ran."""
+    """Record the fleet's units in the sweep folder, so the table also lists units whose job never ran; added to
+    the units already listed there (a re-run of some units keeps the others in the table)."""
     path = Path(sweep_dir) / UNITS_FILE
+    listed = json.loads(path.read_text())["units"] if path.is_file() else {}
+    renamed = [(old, name) for old, p in listed.items() for name, q in units.items() if p == q and old != name]
+    if renamed:
+        old, name = renamed[0]
+        raise GyronetError(f"{units[name]} is unit {old!r} in {path}, here {name!r}: give the pattern the fleet's "
+                           f"fixed folder, e.g. glob(<folder>/**/{Path(units[name]).name}), or use another hydra.sweep.dir")
     path.parent.mkdir(parents=True, exist_ok=True)
-    write_json(path, {"units": dict(units)})
+    write_json(path, {"units": {**listed, **units}})
     return path
+
+
+def set_aside_outputs(job_dir: str | os.PathLike) -> None:
+    """Move a unit's outputs of an earlier run into ``<job dir>/previous/`` (replacing older ones there) as its job
+    starts again, so a re-run that fails reads as failed in the table, not as the earlier run's bundle."""
+    job_dir = Path(job_dir)
+    found = [job_dir / name for name in _OUTPUTS if (job_dir / name).exists()]
+    if found:
+        shutil.rmtree(job_dir / PREVIOUS, ignore_errors=True)
+        (job_dir / PREVIOUS).mkdir()
+        for output in found:
+            output.rename(job_dir / PREVIOUS / output.name)
 
 
 def fleet_table(sweep_dir: str | os.PathLike, spec_range_c: Sequence[float] | None = None) -> dict[str, Any]:
@@ -198,4 +232,5 @@ def write_table(table: Mapping[str, Any], output: str | os.PathLike) -> Path:
     return output
 
 
-__all__ = ["UNITS_FILE", "find_units", "fleet_table", "sweep_overrides", "to_markdown", "write_table", "write_units"]
+__all__ = ["UNITS_FILE", "find_units", "fleet_table", "pattern_root", "set_aside_outputs",
+           "sweep_overrides", "to_markdown", "write_table", "write_units"]
