@@ -16,7 +16,7 @@ import sys
 from pathlib import Path
 
 from gyronet.errors import EXIT_BAD_INPUT, GyronetError, exit_on_error
-from gyronet.training.fleet import find_units, fleet_table, sweep_overrides, write_table, write_units
+from gyronet.training.fleet import check_spec_range, find_units, fleet_table, sweep_overrides, write_table, write_units
 
 SCRIPTS = Path(__file__).resolve().parent
 TABLE = "fleet_table.md"
@@ -50,10 +50,8 @@ def _range(text: str) -> list[float]:
     try:
         value = json.loads(text)
     except ValueError:
-        value = None
-    if not (isinstance(value, list) and len(value) == 2 and all(isinstance(v, (int, float)) for v in value)):
-        raise GyronetError(f"fleet.spec_range_c must be [LOW,HIGH] in degC, got {text!r}")
-    return [float(v) for v in value]
+        value = text
+    return check_spec_range(value, "fleet.spec_range_c")
 
 
 @exit_on_error

@@ -6,9 +6,9 @@ import logging
 import sys
 from pathlib import Path
 
-from omegaconf import DictConfig, OmegaConf
+from omegaconf import DictConfig, ListConfig, OmegaConf
 
-from gyronet.training.fleet import fleet_table, to_markdown, write_table
+from gyronet.training.fleet import check_spec_range, fleet_table, to_markdown, write_table
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # scripts/_cli.py, also when this file is run by path
 from _cli import command  # noqa: E402
@@ -18,8 +18,8 @@ log = logging.getLogger(__name__)
 
 @command("fleet_table", schemas={"sweep": str}, required=("sweep",))
 def main(cfg: DictConfig) -> None:
-    spec = OmegaConf.to_container(cfg.spec_range_c) if cfg.spec_range_c is not None else None
-    table = fleet_table(cfg.sweep, spec)
+    spec = cfg.spec_range_c
+    table = fleet_table(cfg.sweep, check_spec_range(OmegaConf.to_container(spec) if isinstance(spec, ListConfig) else spec))
     output = write_table(table, cfg.output)
     log.info("fleet table %s (and .json):\n%s", output, to_markdown(table))
 

@@ -61,6 +61,16 @@ def test_a_unit_keeps_its_name_and_the_others_when_run_again(tmp_path, monkeypat
         write_units("S", find_units("units/line2/b.csv")[0])
 
 
+def test_spec_range_is_checked_before_anything_runs(tmp_path):
+    """[-40], [a,b] or 5 gave a traceback; [85,-40] to fleet.py trained every unit and then failed."""
+    write_units(tmp_path, {"a": "units/a.csv"})
+    for bad in ([-40], ["a", "b"], 5, [85, -40], [0, float("nan")]):
+        with pytest.raises(GyronetError, match=r"spec_range_c must be \[LOW,HIGH\] in degC with HIGH > LOW"):
+            fleet_table(tmp_path, bad)
+    with pytest.raises(GyronetError, match="fleet.spec_range_c must be"):
+        fleet_script.parse(["data.path=glob(u/*.csv)", "fleet.spec_range_c=[85,-40]"])
+
+
 def test_fleet_arguments():
     pattern, spec, sweep_dir, rest = fleet_script.parse(
         ["-m", "data.path=glob(units/*.csv)", "model=poly3", "fleet.spec_range_c=[-40,85]", "hydra.sweep.dir=S"])
@@ -130,6 +140,10 @@ def test_bad_fleet_input_is_one_line(tmp_path):
     done = run("fleet.py", "data.path=glob(units/*.csv)", "data.pth=3", "hydra.sweep.dir=S", cwd=tmp_path)
     assert done.returncode == 2 and "data.pth" in done.stderr and "fleet:" not in done.stderr  # refused before a unit
     assert not (tmp_path / "S" / "fleet_table.md").exists()
+    done = run("fleet_table.py", f"sweep={tmp_path}", "spec_range_c=[-40]", f"hydra.run.dir={tmp_path / 'h'}",
+               cwd=tmp_path)
+    assert done.returncode == 2 and done.stderr.strip() == "error: spec_range_c must be [LOW,HIGH] in degC with " \
+        "HIGH > LOW, got [-40]"
 
 
 def test_a_failed_rerun_is_not_listed_with_the_earlier_bundle(tmp_path):

@@ -14,6 +14,7 @@ from __future__ import annotations
 import glob
 import json
 import logging
+import math
 import os
 import re
 import shutil
@@ -121,6 +122,17 @@ def set_aside_outputs(job_dir: str | os.PathLike) -> None:
             output.rename(job_dir / PREVIOUS / output.name)
 
 
+def check_spec_range(spec: Any, name: str = "spec_range_c") -> list[float] | None:
+    """``[LOW, HIGH]`` in degC as floats (None stays None), checked before anything is trained or read."""
+    if spec is None:
+        return None
+    numbers = isinstance(spec, (list, tuple)) and len(spec) == 2 and all(
+        isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in spec)
+    if not (numbers and spec[1] > spec[0]):
+        raise GyronetError(f"{name} must be [LOW,HIGH] in degC with HIGH > LOW, got {spec!r}")
+    return [float(v) for v in spec]
+
+
 def fleet_table(sweep_dir: str | os.PathLike, spec_range_c: Sequence[float] | None = None) -> dict[str, Any]:
     """Every unit's figures from a fleet sweep folder.
 
@@ -142,6 +154,7 @@ def fleet_table(sweep_dir: str | os.PathLike, spec_range_c: Sequence[float] | No
         ``bundle``, ``recording``; and, with held-out recordings (``eval.paths``), the share of
         their samples out of range (``eval_out_of_range_share``).
     """
+    spec_range_c = check_spec_range(spec_range_c)
     sweep_dir = Path(sweep_dir)
     listing = sweep_dir / UNITS_FILE
     if not listing.is_file():
@@ -150,9 +163,7 @@ def fleet_table(sweep_dir: str | os.PathLike, spec_range_c: Sequence[float] | No
     rows = {name: _unit_row(sweep_dir / name, path) for name, path in units.items()}
     ranges = [r["temp_range_c"] for r in rows.values() if r["status"] == "ok"]
     if spec_range_c is not None:
-        low, high = (float(v) for v in spec_range_c)
-        if not high > low:
-            raise GyronetError(f"spec_range_c must be [low, high] with high > low, got {list(spec_range_c)}")
+        low, high = spec_range_c
     elif ranges:
         low, high = min(r[0] for r in ranges), max(r[1] for r in ranges)
     else:  # no unit trained: nothing to compare with
@@ -232,5 +243,5 @@ def write_table(table: Mapping[str, Any], output: str | os.PathLike) -> Path:
     return output
 
 
-__all__ = ["UNITS_FILE", "find_units", "fleet_table", "pattern_root", "set_aside_outputs",
+__all__ = ["UNITS_FILE", "check_spec_range", "find_units", "fleet_table", "pattern_root", "set_aside_outputs",
            "sweep_overrides", "to_markdown", "write_table", "write_units"]
