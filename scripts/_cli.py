@@ -166,7 +166,9 @@ def _guard(task: Task, schemas: Mapping[str, Any], required: Sequence[str]) -> T
             if message is None:
                 raise
             if HydraConfig.initialized() and HydraConfig.get().mode == RunMode.MULTIRUN:
-                # the sweeper records the failure (one line) and scores it inf
+                # the sweeper records the failure (one line) and scores it inf; the job's log keeps it too, as
+                # Hydra prints only a multirun's first failure
+                log.error("%s", message)
                 found = user_error(err)
                 if found is err:
                     raise

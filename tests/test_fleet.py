@@ -149,7 +149,8 @@ def test_bad_fleet_input_is_one_line(tmp_path):
 def test_a_failed_rerun_is_not_listed_with_the_earlier_bundle(tmp_path):
     """The table read the earlier run's report.json as the unit's result after its re-run failed."""
     (tmp_path / "units").mkdir()
-    (tmp_path / "units" / "a.csv").write_text("time_s,temp_c,gyro_x_dps,gyro_y_dps,gyro_z_dps\n0,20,0,0,x\n")
+    for name in ("a", "b"):
+        (tmp_path / "units" / f"{name}.csv").write_text("time_s,temp_c,gyro_x_dps,gyro_y_dps,gyro_z_dps\n0,20,0,0,x\n")
     write_units(tmp_path / "S", {"a": "units/a.csv"})
     fake_job(tmp_path / "S", "a", (0.01, 0.02, 0.03), (-40.0, 60.0))  # the earlier run, when the file was fine
     done = run("fleet.py", "data.path=glob(units/*.csv)", "hydra.sweep.dir=S", cwd=tmp_path)
@@ -157,6 +158,9 @@ def test_a_failed_rerun_is_not_listed_with_the_earlier_bundle(tmp_path):
     row = json.loads((tmp_path / "S" / "fleet_table.json").read_text())["units"]["a"]
     assert row["status"] == "missing" and "no report.json" in row["reason"]
     assert (tmp_path / "S" / "a" / "previous" / "compensator" / "meta.json").is_file()  # set aside, not lost
+    # and the error of every failed unit is in its log (Hydra prints only the first)
+    for name in ("a", "b"):
+        assert "units/" + name + ".csv" in (tmp_path / "S" / name / "train.log").read_text()
 
 
 
