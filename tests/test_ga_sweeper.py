@@ -44,7 +44,7 @@ def main(cfg):
         f.write(f"{cfg.x} {cfg.y}")
     with open(os.path.join(out, "compensator", "stage.txt"), "w") as f:
         f.write(str(cfg.get("stage", "")))
-    if cfg.fail == "always" or (cfg.fail == "positive_x" and cfg.x > 0):
+    if cfg.fail == "always" or (cfg.fail == "positive_x" and cfg.x > 0) or os.environ.get("GA_TEST_FAIL"):
         raise RuntimeError("boom")
     value = (cfg.x - 3) ** 2 + (cfg.y + 1) ** 2
     print(f"fitness={value!r}")
@@ -97,9 +97,9 @@ def finish(proc: subprocess.Popen) -> None:
 
 
 def run_app(app: Path, *overrides: str, sweep: str = "sweep", multirun: bool = True,
-            check: bool = True) -> subprocess.CompletedProcess:
-    """Run the app (a GA multirun of 4 x 2 by default) and wait for it."""
-    proc = subprocess.run(_command(app, overrides, sweep, multirun), cwd=app, env=_env(),
+            check: bool = True, env: dict | None = None) -> subprocess.CompletedProcess:
+    """Run the app (a GA multirun of 4 x 2 by default) and wait for it; ``env`` is added to the environment."""
+    proc = subprocess.run(_command(app, overrides, sweep, multirun), cwd=app, env={**_env(), **(env or {})},
                           capture_output=True, text=True, timeout=120)
     if check and proc.returncode != 0:
         raise AssertionError(f"exit {proc.returncode}\n{proc.stdout}\n{proc.stderr}")
@@ -256,6 +256,32 @@ def test_the_final_run_makes_the_best_artifact_with_the_final_overrides(app: Pat
     proc = run_app(app)
     assert calls(app) == len(jobs) + 1 and "final run reused" in proc.stdout + proc.stderr
     assert not (app / "sweep" / "interrupted").exists() and (copied / "stage.txt").read_text() == "final"
+
+
+def _tb_steps(tb_dir: Path, tag: str) -> list:
+    """Every step logged for ``tag`` in the event files of ``tb_dir``, repeats included."""
+    from tensorboard.backend.event_processing.event_file_loader import EventFileLoader
+
+    return sorted(event.step for path in tb_dir.glob("events.out.tfevents.*") for event in EventFileLoader(str(path)).Load()
+                  if any(value.tag == tag for value in event.summary.value))
+
+
+def test_a_stopped_extension_keeps_the_final_bundle_and_logs_each_generation_once(app: Path) -> None:
+    """An extension of a finished sweep that stopped for failures replaced best/ with a search job's bundle, and
+    its stopping generation was in TensorBoard twice once resumed."""
+    (app / "conf" / "hydra" / "sweeper" / "final").mkdir()
+    (app / "conf" / "hydra" / "sweeper" / "final" / "default.yaml").write_text('stage: "final"\n')
+    with open(app / "conf" / "config.yaml", "a") as config:
+        config.write("stage: search\n")
+    run_app(app)
+    final = history(app)["final_run"]
+    proc = run_app(app, "hydra.sweeper.generations=3", check=False, env={"GA_TEST_FAIL": "1"})
+    assert proc.returncode != 0 and "GA sweep stopped" in proc.stderr
+    assert (app / "sweep" / "best" / "compensator" / "stage.txt").read_text() == "final"
+    results = OmegaConf.load(app / "sweep" / "optimization_results.yaml")
+    assert results.best_artifact_job_dir == final["job_dir"] and results.best_artifact_is_final_run is True
+    run_app(app, "hydra.sweeper.generations=3")
+    assert _tb_steps(app / "sweep" / "tb", "ga/failed_jobs") == [0, 1, 2]
 
 
 def test_a_final_run_that_cannot_start_leaves_the_best_search_jobs_artifact(app: Path) -> None:

@@ -83,8 +83,9 @@ class GASweeperImpl(Sweeper):
                 gen = self._evaluate(index, self._breed(index, history, space), fixed, history)
                 history.generations.append(gen)
                 history.save(self.sweep_dir / HISTORY_FILE)
-                self._report(gen, history, tb, bar)
+                best_so_far = self._report(gen, history, bar)
                 self._check_failures(gen)
+                tb.generation(gen, best_so_far)  # after the check: a stopping generation is run again on resume
             completed = True
         finally:
             bar.close()
@@ -182,7 +183,8 @@ class GASweeperImpl(Sweeper):
 
     # -- report
 
-    def _report(self, gen: Generation, history: History, tb: SweepWriter, bar: tqdm) -> None:
+    def _report(self, gen: Generation, history: History, bar: tqdm) -> float:
+        """The generation's line in the log and the bar; the best fitness so far."""
         s = gen.summary()
         best = history.best()
         best_so_far = best.fitness if best else math.inf
@@ -191,9 +193,9 @@ class GASweeperImpl(Sweeper):
                  self.options.generations,
                  s["best_fitness"], s["mean_fitness"], s["std_fitness"], s["jobs"], s["failed"],
                  s["reused"], best_so_far, best.job_idx if best else None)
-        tb.generation(gen, best_so_far)
         bar.set_postfix(best=f"{best_so_far:.4g}")
         bar.update(1)
+        return best_so_far
 
     def _write_results(self, history: History, final_run: bool = False) -> None:
         """``optimization_results.yaml`` and ``best/<best_artifact>`` from the best job so far
@@ -214,7 +216,21 @@ class GASweeperImpl(Sweeper):
             log.warning("no job returned a finite value: no best parameters")
             return
         log.info("best value %.6g with %s", best.fitness, " ".join(to_overrides(best.params)))
-        self._copy_best((self._final_run(best, history) if final_run else None) or best.job_dir)
+        # an extension that stopped keeps the final run of a best it did not beat
+        final_dir = self._done_final_run(best, history) or (self._final_run(best, history) if final_run else None)
+        if self._copy_best(final_dir or best.job_dir):
+            results.update(best_artifact_job_dir=final_dir or best.job_dir, best_artifact_is_final_run=bool(final_dir))
+            OmegaConf.save(OmegaConf.create(results), self.sweep_dir / RESULTS_FILE)
+
+    def _done_final_run(self, best: Evaluation, history: History) -> Optional[str]:
+        """The job dir of the history's final run when it is the best's with ``final``'s overrides, else None."""
+        done = history.final_run
+        if not self.options.final or not self.options.best_artifact or done is None or done["job_dir"] is None \
+                or done["overrides"] != self._with_final(best.overrides) \
+                or not (self.sweep_dir / done["job_dir"] / self.options.best_artifact).is_dir():
+            return None
+        log.info("final run reused: job %d (%s)", done["job_idx"], done["job_dir"])
+        return done["job_dir"]
 
     def _final_run(self, best: Evaluation, history: History) -> Optional[str]:
         """Run the best individual once more with ``final``'s overrides; its job dir, or None.
@@ -226,11 +242,6 @@ class GASweeperImpl(Sweeper):
         if not final or not self.options.best_artifact:
             return None
         overrides = self._with_final(best.overrides)
-        done = history.final_run
-        if done is not None and done["overrides"] == overrides and done["job_dir"] is not None \
-                and (self.sweep_dir / done["job_dir"] / self.options.best_artifact).is_dir():
-            log.info("final run reused: job %d (%s)", done["job_idx"], done["job_dir"])
-            return done["job_dir"]
         log.info("final run of the best (job %d) with %s", self.job_idx, " ".join(f"{k}={v}" for k, v in final.items()))
         try:
             ret = self.launcher.launch([overrides], initial_job_idx=self.job_idx)[0]
@@ -258,16 +269,18 @@ class GASweeperImpl(Sweeper):
         kept = [o for o in overrides if o.split("=", 1)[0].lstrip("+~") not in keys]
         return kept + [f"{k}={v}" for k, v in final.items()]
 
-    def _copy_best(self, best_dir: Optional[str]) -> None:
+    def _copy_best(self, best_dir: str) -> bool:
+        """Copy ``best_artifact`` from ``best_dir`` to ``<sweep dir>/best/``; whether there was one to copy."""
         name = self.options.best_artifact
-        if not name or best_dir is None:
-            return
+        if not name:
+            return False
         src = self.sweep_dir / best_dir / name  # an absolute job_dir replaces the prefix
         dst = self.sweep_dir / "best" / name
         if not src.is_dir():
             log.warning("the best job wrote no %s folder: nothing copied to %s", src, dst)
-            return
+            return False
         if dst.exists():
             shutil.rmtree(dst)
         shutil.copytree(src, dst)
         log.info("copied %s to %s", src, dst)
+        return True
