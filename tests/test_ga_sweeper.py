@@ -284,6 +284,11 @@ def test_a_stopped_extension_keeps_the_final_bundle_and_logs_each_generation_onc
     assert _tb_steps(app / "sweep" / "tb", "ga/failed_jobs") == [0, 1, 2]
 
 
+def test_a_sweep_in_which_every_job_failed_is_an_error(app: Path) -> None:
+    proc = run_app(app, "fail=always", "hydra.sweeper.max_failure_rate=1.0", check=False)
+    assert proc.returncode != 0 and "GA sweep ended without a result: none of its 8 jobs" in proc.stderr
+
+
 def test_a_final_run_that_cannot_start_leaves_the_best_search_jobs_artifact(app: Path) -> None:
     (app / "conf" / "hydra" / "sweeper" / "final").mkdir()
     (app / "conf" / "hydra" / "sweeper" / "final" / "default.yaml").write_text('no_such_key: "1"\n')

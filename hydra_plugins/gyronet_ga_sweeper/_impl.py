@@ -92,6 +92,9 @@ class GASweeperImpl(Sweeper):
             tb.close()
             if history.generations:
                 self._write_results(history, final_run=completed)
+        if history.best() is None:
+            raise GASweepError(f"GA sweep ended without a result: none of its {self.job_idx} jobs returned a finite "
+                               f"number (every job and its error are in {self.sweep_dir / HISTORY_FILE})")
 
     # -- ask
 
