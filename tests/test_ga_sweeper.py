@@ -289,6 +289,17 @@ def test_a_sweep_in_which_every_job_failed_is_an_error(app: Path) -> None:
     assert proc.returncode != 0 and "GA sweep ended without a result: none of its 8 jobs" in proc.stderr
 
 
+def test_a_malformed_search_space_is_one_line(tmp_path: Path) -> None:
+    """interval(3.0, 0.3) or a log interval from 0 gave a 39-line traceback."""
+    for space, message in [("model.width_init=interval(3.0, 0.3)", "model.width_init: needs bounds low <= high"),
+                           ("optim.lr=tag(log, interval(0, 0.1))", "optim.lr: a log scale needs low > 0")]:
+        proc = subprocess.run([sys.executable, str(ROOT / "scripts" / "train.py"), "-m", "hydra/sweeper=ga",
+                               "data.path=F.csv", f"hydra.sweep.dir={tmp_path / 'S'}", space], cwd=tmp_path,
+                              env=_env(), capture_output=True, text=True, timeout=120)
+        assert proc.returncode == 2 and proc.stderr.startswith(f"error: bad GA search space: {message}"), proc.stderr
+        assert len(proc.stderr.strip().splitlines()) == 1
+
+
 def test_a_final_run_that_cannot_start_leaves_the_best_search_jobs_artifact(app: Path) -> None:
     (app / "conf" / "hydra" / "sweeper" / "final").mkdir()
     (app / "conf" / "hydra" / "sweeper" / "final" / "default.yaml").write_text('no_such_key: "1"\n')

@@ -62,7 +62,10 @@ class GASweeperImpl(Sweeper):
         assert self.config is not None and self.hydra_context is not None
         parser = OverridesParser.create(config_loader=self.hydra_context.config_loader)
         lines = [f"{k}={v}" for k, v in self.params.items()] + list(arguments)
-        space, fixed = parse_search_space(lines, parser)
+        try:
+            space, fixed = parse_search_space(lines, parser)
+        except (ValueError, TypeError) as err:  # bounds the ga module refuses, e.g. interval(3.0, 0.3)
+            raise GASweepError(f"bad GA search space: {err}") from None
         if not space:
             raise GASweepError("the GA sweeper has no search space: set hydra.sweeper.params or "
                                "pass sweep overrides such as x='interval(0, 1)'")
