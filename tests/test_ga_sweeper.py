@@ -423,7 +423,7 @@ def test_options_that_search_nothing_are_refused() -> None:
                                 ("generations", 0, "generations must be at least 1"),
                                 ("elitism", 4, "elitism must be in"), ("elitism", -1, "elitism must be in"),
                                 ("tournament_size", 0, "tournament_size"), ("crossover_rate", 5.0, "crossover_rate"),
-                                ("mutation_scale", -0.1, "mutation_scale")]:
+                                ("mutation_scale", -0.1, "mutation_scale"), ("seed", -1, "seed must be >= 0")]:
         with pytest.raises(ValueError, match=message):
             GAOptions(**{**good, key: value})
 

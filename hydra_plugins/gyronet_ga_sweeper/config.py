@@ -106,6 +106,8 @@ class GAOptions:
                              f"are children), got {self.elitism}")
         if self.tournament_size < 1:
             raise ValueError(f"tournament_size must be at least 1, got {self.tournament_size}")
+        if self.seed < 0:  # numpy's generators take no negative seed
+            raise ValueError(f"seed must be >= 0, got {self.seed}")
         if self.mutation_scale < 0:
             raise ValueError(f"mutation_scale must be >= 0, got {self.mutation_scale}")
         for name in ("crossover_rate", "mutation_rate", "max_failure_rate"):
