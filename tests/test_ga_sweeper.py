@@ -382,6 +382,9 @@ def test_resume_refuses_changed_data_and_breeding_but_not_reordered_overrides(ap
     data.write_text("two")
     proc = run_app(app, f"+data={data}", "fail=never", "hydra.sweeper.generations=4", check=False)
     assert proc.returncode != 0 and f"a sweep of other data: {data} changed" in proc.stderr
+    data.unlink()  # gone: was taken as unchanged
+    proc = run_app(app, f"+data={data}", "fail=never", "hydra.sweeper.generations=4", check=False)
+    assert proc.returncode != 0 and f"a sweep of other data: {data} (gone) changed" in proc.stderr
     assert calls(app) == before + sum(not e["cached"] for e in history(app)["generations"][2]["individuals"])
 
 

@@ -101,7 +101,8 @@ def start(sweep_dir: Path, space_json: List[Dict[str, Any]], fixed: List[str], o
     if sorted(old.fixed_overrides) != sorted(fixed):  # another recording or setting: its fitness would not compare
         raise GASweepError(f"{path} is a sweep with other fixed overrides ({old.fixed_overrides}, now {fixed}); "
                            f"{NEW_DIR}")
-    changed = [f for f, digest in old.fixed_files.items() if new.fixed_files.get(f, digest) != digest]
+    changed = [f + ("" if f in new.fixed_files else " (gone)") for f, digest in old.fixed_files.items()
+               if new.fixed_files.get(f) != digest]  # a file gone since is not the same data either
     if changed:
         raise GASweepError(f"{path} is a sweep of other data: {', '.join(changed)} changed since; {NEW_DIR}")
     bred = {k: (old.options[k], getattr(options, k)) for k in BREEDING if old.options.get(k, getattr(options, k))
