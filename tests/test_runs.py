@@ -89,6 +89,13 @@ def test_features_are_per_run_and_blocks_never_span_runs(paper_csv, cycle_csv):
     assert fold.temp_range_c == runs[1].temp_range_c
 
 
+@pytest.mark.parametrize("tau_s", [0.0, -2.0, float("nan")])
+def test_rate_tau_s_must_be_positive(paper_csv, tau_s):
+    """0 gave a ZeroDivisionError; a negative one diverged the fit with a hint to lower optim.lr."""
+    with pytest.raises(GyronetError, match=r"data.rate_tau_s must be > 0 s .*got"):
+        training_data(path=str(paper_csv), rate_tau_s=tau_s)
+
+
 def test_training_data_one_or_several_and_clear_errors(paper_csv, cycle_csv):
     assert type(training_data(path=str(paper_csv))).__name__ == "DriftData"
     assert type(training_data(paths=[str(paper_csv)])).__name__ == "DriftData"

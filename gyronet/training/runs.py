@@ -20,7 +20,7 @@ from typing import Any, Callable, Sequence
 import numpy as np
 from torch import nn
 
-from gyronet.errors import GyronetError
+from gyronet.errors import ConfigError, GyronetError
 from gyronet.model.features import PAPER_FEATURES
 from gyronet.recordings.data import AXES
 from gyronet.training.capacity import MIN_IN_BOX_S, inside_box
@@ -115,6 +115,8 @@ def training_data(path: str | None = None, paths: Sequence[str] | None = None, r
     ``val_fold`` and ``val_path`` apply to one recording only, ``val_startup_s`` to both (as
     deployed: by run, or the starts' mixing on one recording, ``gyronet.training.starts``).
     """
+    if rate_tau_s is not None and not rate_tau_s > 0:  # 0 divides by zero, a negative one diverges the fit
+        raise ConfigError(f"data.rate_tau_s must be > 0 s (the dT/dt tracker's time constant), got {rate_tau_s}")
     if path is not None and paths:
         raise GyronetError("give data.path=F.csv (one recording) or data.paths=[A.csv,B.csv] (several runs), not both")
     if path is None and not paths:
