@@ -12,13 +12,15 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))  # scripts/_cli.py, als
 from _cli import command  # noqa: E402
 
 
-@command("record", "deploy", schemas={"lpbus": "gyronet.deploy.stream.lpbus_setup.LpBusSetup"}, required=("port", "output"))
+@command("record", "deploy", schemas={"lpbus": "gyronet.deploy.stream.lpbus_setup.LpBusSetup", "overwrite": bool},
+         required=("port", "output"))
 def main(cfg: DictConfig) -> None:
     options = OmegaConf.to_container(cfg, resolve=True)
     with stop_on_signals() as stop:  # Ctrl-C and SIGTERM end the recording with whole lines
         record_stream(options["port"], options["output"], int(options["baud"]), LpBusSetup(**options["lpbus"]),
                       options["max_samples"], options["duration_s"], float(options["read_timeout_s"]),
-                      options["reconnect"], options["clock"], options["summary"], stop=stop)
+                      options["reconnect"], options["clock"], options["summary"], stop=stop,
+                      overwrite=options["overwrite"])
 
 
 if __name__ == "__main__":

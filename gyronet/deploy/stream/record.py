@@ -42,14 +42,17 @@ def record_stream(port: str, output: str | Path, baud: int = 921600, lpbus: LpBu
                   max_samples: int | None = None, duration_s: float | None = None, read_timeout_s: float = 0.05,
                   reconnect: Mapping[str, float | None] | None = None, clock: Mapping[str, float | None] | None = None,
                   summary_path: str | Path | None = None, restart_gap_s: float = 1.0,
-                  stop: Callable[[], bool] | None = None) -> dict:
+                  stop: Callable[[], bool] | None = None, overwrite: bool = False) -> dict:
     """Set the sensor up, record it into ``output`` until told to stop; return the summary.
 
     ``stop`` is polled between reads; without one, SIGINT and SIGTERM stop the recording there
-    (:func:`~gyronet.deploy.stream.signals.stop_on_signals`), so what was read is written.
+    (:func:`~gyronet.deploy.stream.signals.stop_on_signals`), so what was read is written. An existing
+    ``output`` is refused before the port opens unless ``overwrite`` (a chamber run is hours).
 
     Raises
     ------
+    OutputError
+        Before the port opens: ``output`` exists (without ``overwrite``) or is ``summary_path``.
     PortError, SensorError, ConfigError
         Before any row: a port that cannot be opened, a sensor that does not answer or cannot be
         set up, a layout without gyro and temperature.
@@ -60,6 +63,7 @@ def record_stream(port: str, output: str | Path, baud: int = 921600, lpbus: LpBu
         When the output cannot be written.
     """
     lpbus = lpbus or LpBusSetup()
+    _refuse_output(Path(output), summary_path, overwrite)
     opened = open_port_or_fail(port, baud, read_timeout_s)
     try:
         start = start_lpbus(opened, port, lpbus)
@@ -67,7 +71,7 @@ def record_stream(port: str, output: str | Path, baud: int = 921600, lpbus: LpBu
         if missing:
             raise ConfigError(f"{port}: the frames ({start.layout.describe()}) lack {', '.join(missing)}: a "
                               "recording needs the gyro and the temperature (lpbus.fields)")
-        out = _RecordingFile(output, start.layout.columns, _metadata(start))
+        out = _RecordingFile(output, start.layout.columns, _metadata(start), overwrite)
     except Exception:
         opened.close()
         raise
@@ -151,6 +155,19 @@ def _rate_the_stamps_show(out: "_RecordingFile", intervals: Counter) -> float | 
     return stamped_hz
 
 
+def _refuse_output(output: Path, summary_path: str | Path | None, overwrite: bool) -> None:
+    """Refuse, before the sensor is touched, an output that would replace a recording or be replaced by the summary."""
+    refuse_gzip_name(output)
+    if summary_path is not None and os.path.realpath(summary_path) == os.path.realpath(output):
+        raise OutputError(f"{output}: summary= names the recording itself, which the summary would replace; "
+                          "give summary= another path")
+    if output.is_dir():
+        raise OutputError(f"{output}: is a folder; give output= a file name")
+    if os.path.lexists(output) and not overwrite:
+        raise OutputError(f"{output}: exists; a recording is not replaced unless overwrite=true (or give "
+                          "another output=)")
+
+
 def _metadata(start) -> dict[str, str]:
     meta = {"gyro_source": "raw", "lpbus": start.layout.describe()}
     if start.sensor is not None:
@@ -165,13 +182,17 @@ def _metadata(start) -> dict[str, str]:
 class _RecordingFile:
     """The recording CSV: metadata and header first, then one whole line per ``write``."""
 
-    def __init__(self, path: str | Path, columns: list[str], meta: Mapping[str, str]):
+    def __init__(self, path: str | Path, columns: list[str], meta: Mapping[str, str], overwrite: bool = False):
         self.path, self.n_rows = Path(path), 0
         self.fs_hz = float(meta["fs_hz"]) if "fs_hz" in meta else None
         refuse_gzip_name(self.path)
         try:
             self.path.parent.mkdir(parents=True, exist_ok=True)
-            self._fd = os.open(self.path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
+            # O_EXCL: a file that appeared while the sensor was set up is not replaced either
+            replace = os.O_TRUNC if overwrite else os.O_EXCL
+            self._fd = os.open(self.path, os.O_WRONLY | os.O_CREAT | replace, 0o644)
+        except FileExistsError:
+            raise OutputError(f"{self.path}: exists; a recording is not replaced unless overwrite=true") from None
         except OSError as err:
             raise OutputError(f"{self.path}: cannot write the recording ({err.strerror})") from None
         head, self._fs_at = b"", None

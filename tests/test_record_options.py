@@ -1,0 +1,78 @@
+"""record.py's output and options: a recording is hours of a chamber, so what would lose it, or a bad option that
+would end in a traceback after the sensor was set up, is refused in one line before the port opens."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from gyronet.deploy.stream.lpbus_setup import LpBusSetup
+from gyronet.deploy.stream.record import _RecordingFile, record_stream
+from gyronet.deploy.stream.summary import OutputError
+from test_commands import assert_one_line_error, run_cases
+
+MUTE = LpBusSetup(configure=True, timeout_s=0.1)  # loop:// answers nothing: reaching the sensor is a SensorError
+COLUMNS = ["time_s", "temp_c", "gyro_x_dps", "gyro_y_dps", "gyro_z_dps"]
+
+
+@pytest.fixture
+def chamber_run(tmp_path) -> Path:
+    path = tmp_path / "run1.csv"
+    path.write_text("time_s,temp_c,gyro_x_dps,gyro_y_dps,gyro_z_dps\n0.0,60.0,0.1,0.2,0.3\n")
+    return path
+
+
+def test_an_existing_recording_is_refused_before_the_sensor_is_touched(chamber_run):
+    before = chamber_run.read_text()
+    with pytest.raises(OutputError, match="exists; a recording is not replaced unless overwrite=true"):
+        record_stream("loop://", chamber_run, lpbus=MUTE)
+    assert chamber_run.read_text() == before
+
+
+def test_a_summary_that_is_the_output_is_refused(tmp_path):
+    path = tmp_path / "run.csv"
+    with pytest.raises(OutputError, match="summary= names the recording itself"):
+        record_stream("loop://", path, lpbus=MUTE, summary_path=tmp_path / "." / "run.csv")
+    assert not path.exists()
+
+
+def test_a_file_that_appeared_during_the_set_up_is_not_replaced_unless_asked(chamber_run):
+    before = chamber_run.read_text()
+    with pytest.raises(OutputError, match="overwrite=true"):
+        _RecordingFile(chamber_run, COLUMNS, {})
+    assert chamber_run.read_text() == before
+    out = _RecordingFile(chamber_run, COLUMNS, {}, overwrite=True)
+    out.close()
+    assert chamber_run.read_text() == ",".join(COLUMNS) + "\n"
+
+
+# ---------------------------------------------------------------- the scripts, in one zygote (test_commands.py)
+
+def cases(work: Path, chamber_run: Path) -> dict[str, tuple[str, list[str], tuple[str, ...]]]:
+    """id: (script, arguments, what the one line must say)."""
+    record = ["port=loop://", "lpbus.timeout_s=0.1"]
+    return {
+        "record-existing_output": ("record", [*record, f"output={chamber_run}"], ("overwrite=true", str(chamber_run))),
+        "record-summary_is_output": ("record", [*record, f"output={work}/r.csv", f"summary={work}/r.csv"],
+                                     ("summary= names the recording itself",)),
+    }
+
+
+@pytest.fixture(scope="module")
+def results(tmp_path_factory) -> dict[str, dict]:
+    work = tmp_path_factory.mktemp("options")
+    chamber_run = work / "run1.csv"
+    chamber_run.write_text("time_s,temp_c,gyro_x_dps,gyro_y_dps,gyro_z_dps\n0.0,60.0,0.1,0.2,0.3\n")
+    listed = cases(work, chamber_run)
+    by_id = run_cases([{"id": key, "script": f"scripts/{script}.py", "args": [*args, f"hydra.run.dir={work / key}"]}
+                       for key, (script, args, _) in listed.items()], work)
+    for key, (_, _, expect) in listed.items():
+        by_id[key]["expect"] = expect
+    by_id["chamber_run"] = {"text": chamber_run.read_text()}
+    return by_id
+
+
+@pytest.mark.parametrize("case", list(cases(Path("/w"), Path("/w/run1.csv"))))
+def test_bad_options_are_one_line_before_the_port_opens(results, case):
+    assert_one_line_error(results[case], *results[case]["expect"])
+    assert results["chamber_run"]["text"].endswith("0.0,60.0,0.1,0.2,0.3\n")  # never replaced
