@@ -31,6 +31,7 @@ from pathlib import Path
 from typing import Callable
 
 from gyronet.atomic import write_text
+from gyronet.errors import ConfigError
 from gyronet.deploy.stream.emulator import StreamPlan
 
 log = logging.getLogger(__name__)
@@ -38,6 +39,7 @@ log = logging.getLogger(__name__)
 _MARKER_SPEED = termios.B50
 _POLL_S = 0.01
 _QUIET_POLLS = 10  # drain: this many polls in a row find nothing unread
+PTY_PREFIXES = ("/dev/pts/", "/dev/ttys", "/dev/ttyp")  # where os.openpty's slaves live (Linux, macOS, BSD)
 
 
 class PtySensor:
@@ -46,13 +48,16 @@ class PtySensor:
     Parameters
     ----------
     link
-        Symlink re-pointed to the current slave device.
+        Symlink re-pointed to the current slave device: a path that is missing or a symlink to a pty
+        (an earlier emulator's), else refused (:func:`check_link`).
     port_file
         File that holds the current slave path (written atomically).
     """
 
     def __init__(self, link: str | os.PathLike | None = None, port_file: str | os.PathLike | None = None):
         self.link = Path(link) if link else None
+        if self.link is not None:
+            check_link(self.link)
         self.port_file = Path(port_file) if port_file else None
         self.master_fd: int | None = None
         self.slave_fd: int | None = None
@@ -131,6 +136,22 @@ class PtySensor:
         """Remove the symlink (at the end, so a reader sees the sensor gone)."""
         if self.link is not None:
             self.link.unlink(missing_ok=True)
+
+
+def check_link(link: Path) -> None:
+    """Refuse a ``link`` that the emulator would replace and remove at exit, were it a file or a device node, or
+    that it cannot create: only a missing path or a symlink to a pty (and the same for its ``.tmp``) is its own."""
+    if not link.parent.is_dir():
+        raise ConfigError(f"link={link}: its folder {link.parent} does not exist")
+    for path in (link, link.with_name(link.name + ".tmp")):
+        if path.is_symlink():
+            target = os.readlink(path)
+            if not target.startswith(PTY_PREFIXES):
+                raise ConfigError(f"link={link}: {path} is a symlink to {target}, not to a pty; the emulator would "
+                                  "replace it: give link= a path that does not exist")
+        elif os.path.lexists(path):
+            raise ConfigError(f"link={link}: {path} exists and is not a symlink; the emulator would replace it and "
+                              "remove it at exit: give link= a path that does not exist")
 
 
 def play(plan: StreamPlan, sensor: PtySensor, speed: float = 1.0, reader_timeout_s: float = 30.0,

@@ -77,6 +77,7 @@ def emulate_file(input_path: str | os.PathLike, protocol: str = "lpbus", speed: 
     the pty first answers the host's commands (``layout`` is then unused: the frames follow the
     layout the host set), and the log also holds the commands received and the final layout.
     """
+    sensor = PtySensor(link, port_file)  # a link it must not replace is refused before the recording loads
     recording = load_recording(input_path)
     if device is not None and protocol != "lpbus":
         raise GyronetError("an emulated sensor (sensor.model) speaks LP-BUS: set protocol=lpbus or sensor.model=null")
@@ -96,7 +97,6 @@ def emulate_file(input_path: str | os.PathLike, protocol: str = "lpbus", speed: 
                  len(plan.log["good_indices"]), plan.log["expected_faults"] or "none")
         return plan
 
-    sensor = PtySensor(link, port_file)
     plan = None
     try:
         if device is None:
