@@ -7,6 +7,7 @@ from pathlib import Path
 import pytest
 
 from gyronet.deploy.stream.lpbus_setup import LpBusSetup
+from gyronet.deploy.stream.pty_sensor import play_in_thread
 from gyronet.deploy.stream.record import _RecordingFile, record_stream
 from gyronet.deploy.stream.summary import OutputError
 from test_commands import assert_one_line_error, run_cases
@@ -44,6 +45,44 @@ def test_a_file_that_appeared_during_the_set_up_is_not_replaced_unless_asked(cha
     out = _RecordingFile(chamber_run, COLUMNS, {}, overwrite=True)
     out.close()
     assert chamber_run.read_text() == ",".join(COLUMNS) + "\n"
+
+
+@pytest.mark.parametrize("summary_writable", [True, False])
+def test_a_full_disk_leaves_whole_rows_and_the_summary_says_so(lpbus_recording, tmp_path, monkeypatch,
+                                                               summary_writable):
+    import json
+    import os
+
+    import numpy as np
+
+    from gyronet.deploy.stream import record
+    from gyronet.recordings.data import load_recording
+    from test_lpbus_live import FAST, power_on, started
+    from test_stream_e2e import FullDisk
+
+    recording = load_recording(lpbus_recording)
+    recording.columns["time_s"] = np.arange(len(recording)) / 100.0
+    link, path = tmp_path / "sensor", tmp_path / "run.csv"
+    (tmp_path / "not-a-folder").write_text("")
+    summary_path = tmp_path / ("summary.json" if summary_writable else "not-a-folder/summary.json")
+    started(play_in_thread(None, link, device=power_on("LPMS-CU2"), columns=recording.columns), link)
+    monkeypatch.setattr(record.os, "write", FullDisk(path, 3000))
+    with pytest.raises(OutputError) as caught:
+        record_stream(str(link), path, lpbus=LpBusSetup(configure=True, rate_hz=100), reconnect=FAST,
+                      summary_path=summary_path)
+    monkeypatch.undo()
+    message = str(caught.value)
+    assert "\n" not in message and "No space left on device" in message and str(path) in message
+    text = path.read_text()
+    assert text.endswith("\n") and os.path.getsize(path) <= 3000
+    saved = load_recording(path)
+    assert 5 < len(saved) < len(recording)
+    if summary_writable:
+        summary = json.loads(summary_path.read_text())
+        assert summary["stopped"] == "output_failed" and summary["n_samples"] == len(saved)
+        assert "No space left on device" in summary["error"] and f"summary in {summary_path}" in message
+    else:
+        assert "cannot write the summary" in message and not summary_path.exists()
 
 
 # ---------------------------------------------------------------- the scripts, in one zygote (test_commands.py)

@@ -118,6 +118,8 @@ def record_stream(port: str, output: str | Path, baud: int = 921600, lpbus: LpBu
         stopped = "interrupted"
     except (SensorError, LayoutError) as err:  # after a replug: another sensor, or frames that do not fit
         stopped, refusal = "refused", err
+    except OutputError as err:  # a full disk: the file ends with its last whole row, and the summary says so
+        stopped, refusal = "output_failed", err
     finally:
         items.close()
         stamped_hz = _rate_the_stamps_show(out, intervals)
@@ -126,11 +128,18 @@ def record_stream(port: str, output: str | Path, baud: int = 921600, lpbus: LpBu
     summary = {"stopped": stopped, "n_samples": out.n_rows, "faults": counter.as_dict(), "n_faults": counter.n_faults,
                "clock_restarts": restarts, "output": str(out.path), "sensor": start.as_dict(),
                **({"fs_hz_from_stamps": stamped_hz} if stamped_hz is not None else {}),
-               **({"refused": str(refusal)} if refusal is not None else {})}
+               **({"refused" if stopped == "refused" else "error": str(refusal)} if refusal is not None else {})}
     log.info("recorded %d samples into %s (%s); %s", out.n_rows, out.path, stopped, counter.summary())
     if summary_path is not None:
-        write_summary(summary_path, summary)
+        try:
+            write_summary(summary_path, summary)
+        except OutputError as err:
+            if stopped != "output_failed":
+                raise
+            raise OutputError(f"{refusal}; {err}") from None
         log.info("summary (samples, faults by reason, the sensor's account): %s", summary_path)
+    if isinstance(refusal, OutputError):
+        raise OutputError(f"{refusal}" + (f"; summary in {summary_path}" if summary_path is not None else "")) from None
     if refusal is not None:
         raise refusal
     return summary
@@ -183,7 +192,7 @@ class _RecordingFile:
     """The recording CSV: metadata and header first, then one whole line per ``write``."""
 
     def __init__(self, path: str | Path, columns: list[str], meta: Mapping[str, str], overwrite: bool = False):
-        self.path, self.n_rows = Path(path), 0
+        self.path, self.n_rows, self._size_bytes = Path(path), 0, 0
         self.fs_hz = float(meta["fs_hz"]) if "fs_hz" in meta else None
         refuse_gzip_name(self.path)
         try:
@@ -200,13 +209,20 @@ class _RecordingFile:
             if key == "fs_hz":
                 self._fs_at, value = len(head) + len(b"# fs_hz="), f"{value:<{FS_SLOT}}"  # read back stripped
             head += f"# {key}={value}\n".encode()
-        self._write(head.decode() + ",".join(columns) + "\n")
+        try:
+            self._write(head.decode() + ",".join(columns) + "\n")
+        except OutputError:  # not even the header fits: no file rather than an empty one
+            os.close(self._fd)
+            self.path.unlink(missing_ok=True)
+            raise
 
     def set_fs_hz(self, fs_hz: float) -> None:
         """Overwrite the ``# fs_hz=`` value in place (its slot is :data:`FS_SLOT` characters wide)."""
-        os.lseek(self._fd, self._fs_at, os.SEEK_SET)
-        self._write(f"{fs_hz:<{FS_SLOT}g}")
-        os.lseek(self._fd, 0, os.SEEK_END)
+        try:
+            os.pwrite(self._fd, f"{fs_hz:<{FS_SLOT}g}".encode(), self._fs_at)
+        except OSError as err:  # the rows are whole; the loader then refuses the file's rate by name
+            log.error("%s: could not write # fs_hz=%g (%s)", self.path, fs_hz, err.strerror or err)
+            return
         self.fs_hz = fs_hz
 
     def write(self, values: list[float]) -> None:
@@ -214,12 +230,16 @@ class _RecordingFile:
         self.n_rows += 1
 
     def _write(self, text: str) -> None:
-        data = text.encode()
+        data, done = text.encode(), 0
         try:
-            while data:
-                data = data[os.write(self._fd, data):]
-        except OSError as err:
-            raise OutputError(f"{self.path}: cannot write the recording ({err.strerror})") from None
+            while done < len(data):
+                done += os.write(self._fd, data[done:])
+        except OSError as err:  # a full disk: cut the part-written line off, so the file ends with a whole row
+            with contextlib.suppress(OSError):
+                os.ftruncate(self._fd, self._size_bytes)
+            raise OutputError(f"{self.path}: cannot write the recording ({err.strerror or err}) after {self.n_rows} "
+                              "rows; the file ends with the last whole row") from None
+        self._size_bytes += len(data)
 
     def close(self) -> None:
         os.close(self._fd)
