@@ -12,13 +12,14 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))  # scripts/_cli.py, als
 from _cli import command  # noqa: E402
 
 
-@command("record", "deploy", schemas={"lpbus": "gyronet.deploy.stream.lpbus_setup.LpBusSetup", "overwrite": bool},
-         required=("port", "output"))
+@command("record", "deploy", schemas={"lpbus": "gyronet.deploy.stream.lpbus_setup.LpBusSetup", "overwrite": bool,
+                                      "baud": int, "max_samples": int | None, "duration_s": float | None,
+                                      "read_timeout_s": float}, required=("port", "output"))
 def main(cfg: DictConfig) -> None:
     options = OmegaConf.to_container(cfg, resolve=True)
     with stop_on_signals() as stop:  # Ctrl-C and SIGTERM end the recording with whole lines
-        record_stream(options["port"], options["output"], int(options["baud"]), LpBusSetup(**options["lpbus"]),
-                      options["max_samples"], options["duration_s"], float(options["read_timeout_s"]),
+        record_stream(options["port"], options["output"], options["baud"], LpBusSetup(**options["lpbus"]),
+                      options["max_samples"], options["duration_s"], options["read_timeout_s"],
                       options["reconnect"], options["clock"], options["summary"], stop=stop,
                       overwrite=options["overwrite"])
 

@@ -11,15 +11,16 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))  # scripts/_cli.py, als
 from _cli import command  # noqa: E402
 
 
-@command("stream", "deploy", schemas={"lpbus": "gyronet.deploy.stream.lpbus_setup.LpBusSetup"},
-         required=("model", "port", "output"))
+@command("stream", "deploy", schemas={"lpbus": "gyronet.deploy.stream.lpbus_setup.LpBusSetup", "baud": int,
+                                      "max_samples": int | None, "duration_s": float | None, "read_timeout_s": float,
+                                      "allan_every_s": float, "resample": bool}, required=("model", "port", "output"))
 def main(cfg: DictConfig) -> None:
     options = OmegaConf.to_container(cfg, resolve=True)
     with stop_on_signals() as stop:  # SIGINT and SIGTERM alike, whatever the parent left them as
-        run_stream(options["model"], options["port"], options["output"], options["protocol"], int(options["baud"]),
+        run_stream(options["model"], options["port"], options["output"], options["protocol"], options["baud"],
                    None, options["max_samples"], options["duration_s"],
                    float(options["allan_every_s"]), options["tb_dir"], options["summary"],
-                   float(options["read_timeout_s"]), options["reconnect"], options["clock"], stop=stop,
+                   options["read_timeout_s"], options["reconnect"], options["clock"], stop=stop,
                    startup=options.get("startup"), resample=bool(options.get("resample", False)),
                    lpbus=LpBusSetup(**options["lpbus"]), realtime_priority=options.get("realtime_priority"))
 

@@ -90,7 +90,21 @@ def test_a_full_disk_leaves_whole_rows_and_the_summary_says_so(lpbus_recording, 
 def cases(work: Path, chamber_run: Path) -> dict[str, tuple[str, list[str], tuple[str, ...]]]:
     """id: (script, arguments, what the one line must say)."""
     record = ["port=loop://", "lpbus.timeout_s=0.1"]
-    return {
+    stream = [f"model={work}/no_bundle", "port=loop://", f"output={work}/l.csv"]
+    bad = {  # option: (value, what the line says): each ended in a traceback, an empty file or a 1-sample run
+        "baud": ("92160O", "baud must be an integer, got '92160O'"), "baud ": ("-5", "baud must be a positive integer"),
+        "duration_s": ("abc", "duration_s must be a number or null"),
+        "duration_s ": ("-1", "duration_s must be a positive number of seconds or null, got -1"),
+        "max_samples": ("abc", "max_samples must be an integer or null"),
+        "max_samples ": ("-3", "max_samples must be a positive integer or null, got -3"),
+        "read_timeout_s": ("abc", "read_timeout_s must be a number"),
+        "read_timeout_s ": ("0", "read_timeout_s must be a positive number of seconds"),
+    }
+    limits = {f"{script}-{key.strip()}-{value}": (script, [*base, f"output={work}/{script}.csv" if script == "record"
+                                                          else f"output={work}/l.csv", f"{key.strip()}={value}"],
+                                                  (expect,))
+              for script, base in (("record", record), ("stream", stream)) for key, (value, expect) in bad.items()}
+    return {**limits,
         "record-existing_output": ("record", [*record, f"output={chamber_run}"], ("overwrite=true", str(chamber_run))),
         "record-summary_is_output": ("record", [*record, f"output={work}/r.csv", f"summary={work}/r.csv"],
                                      ("summary= names the recording itself",)),
@@ -106,7 +120,7 @@ def results(tmp_path_factory) -> dict[str, dict]:
     by_id = run_cases([{"id": key, "script": f"scripts/{script}.py", "args": [*args, f"hydra.run.dir={work / key}"]}
                        for key, (script, args, _) in listed.items()], work)
     for key, (_, _, expect) in listed.items():
-        by_id[key]["expect"] = expect
+        by_id[key].update(expect=expect, work=str(work))
     by_id["chamber_run"] = {"text": chamber_run.read_text()}
     return by_id
 
@@ -115,3 +129,4 @@ def results(tmp_path_factory) -> dict[str, dict]:
 def test_bad_options_are_one_line_before_the_port_opens(results, case):
     assert_one_line_error(results[case], *results[case]["expect"])
     assert results["chamber_run"]["text"].endswith("0.0,60.0,0.1,0.2,0.3\n")  # never replaced
+    assert not (Path(results[case]["work"]) / "record.csv").exists()  # refused before the output was made

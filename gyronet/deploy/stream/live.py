@@ -31,6 +31,7 @@ from gyronet.deploy.stream.allocator import fix_mmap_threshold
 from gyronet.deploy.stream.chunk import RATE_PROBE_SAMPLES, ChunkWriter, RateGate, n_rows
 from gyronet.deploy.stream.events import Sample, SampleBlock
 from gyronet.deploy.stream.live_allan import LiveAllan
+from gyronet.deploy.stream.limits import check_run_limits
 from gyronet.deploy.stream.live_recal import LiveRecalibration
 from gyronet.deploy.stream.lpbus_setup import LpBusSetup, LpBusStart, start_lpbus
 from gyronet.deploy.stream.output import LiveWriter, OutputError, output_names
@@ -100,12 +101,14 @@ def run_stream(bundle_dir: str | Path, port: str, output: str | Path, protocol: 
     Raises
     ------
     PortError, BundleError, ConfigError
-        Before any sample is written: a port that cannot be opened, a bundle that does not fit
-        (its columns, or its rate against the stream's), a real-time priority the OS refuses.
+        Before any sample is written: a baud, limit or timeout that is not positive, a port that cannot be
+        opened, a bundle that does not fit (its columns, or its rate against the stream's), a real-time
+        priority the OS refuses.
     OutputError
         When the output cannot be written (a full disk): after the port is closed and the
         summary written (or logged as impossible); the output ends with a complete line.
     """
+    check_run_limits(baud, max_samples, duration_s, read_timeout_s)
     options = dict(reconnect or {})
     wait_at_start = bool(options.pop("wait_at_start", False))
     use_realtime(realtime_priority)()  # refused now, before the port opens, rather than after the set-up

@@ -24,6 +24,7 @@ from typing import Callable, Mapping
 from gyronet.errors import ConfigError
 from gyronet.recordings.data import FS_TOLERANCE
 from gyronet.deploy.stream.events import FaultCounter, Sample, SampleCheck
+from gyronet.deploy.stream.limits import check_run_limits
 from gyronet.deploy.stream.lpbus_link import SensorError
 from gyronet.deploy.stream.lpbus_probe import LayoutError
 from gyronet.deploy.stream.lpbus_setup import LpBusSetup, start_lpbus
@@ -51,8 +52,8 @@ def record_stream(port: str, output: str | Path, baud: int = 921600, lpbus: LpBu
 
     Raises
     ------
-    OutputError
-        Before the port opens: ``output`` exists (without ``overwrite``) or is ``summary_path``.
+    ConfigError, OutputError
+        Before the port opens: a limit that is not positive (:func:`.limits.check_run_limits`); ``output`` exists (without ``overwrite``) or is ``summary_path``.
     PortError, SensorError, ConfigError
         Before any row: a port that cannot be opened, a sensor that does not answer or cannot be
         set up, a layout without gyro and temperature.
@@ -63,6 +64,7 @@ def record_stream(port: str, output: str | Path, baud: int = 921600, lpbus: LpBu
         When the output cannot be written.
     """
     lpbus = lpbus or LpBusSetup()
+    check_run_limits(baud, max_samples, duration_s, read_timeout_s)
     _refuse_output(Path(output), summary_path, overwrite)
     opened = open_port_or_fail(port, baud, read_timeout_s)
     try:
