@@ -99,6 +99,36 @@ def test_a_rate_the_sensor_lacks_is_refused_unless_any_rate():
     assert info.rate_hz == 50
 
 
+LEGACY_SETS, IG1_SETS = {10, 11, 75, 23}, {30, 34, 136, 64}  # SET_TRANSMIT_DATA, rate, precision, auto-calibration
+
+
+@pytest.mark.parametrize("model, wanted, refused", [
+    ("LPMS-CU2", replace(WANTED, rate_hz=7), "not 7 Hz"),
+    ("LPMS-CU2", replace(WANTED, precision=8), "lpbus.precision is 16 or 32"),
+    ("LPMS-IG1-RS232", replace(WANTED, rate_hz=7), "not 7 Hz"),
+    ("LPMS-IG1-RS232", replace(WANTED, precision=8), "lpbus.precision is 16 or 32"),
+    ("LPMS-IG1-RS232", replace(WANTED, rate_hz=1000), "would stream at 1000 Hz, above its 500 Hz timestamp clock"),
+])
+def test_a_refused_setting_leaves_the_sensor_as_it_was_found(model, wanted, refused):
+    """The outputs were set before the rate was checked: a refused rate left the sensor half set up."""
+    device = EmulatedLpms(model=model, rate_hz=50, fields=("quaternion",), precision=16, gyro_autocalibration=True)
+    with pytest.raises(SensorError, match=refused):
+        configure_sensor(FakePort(device), wanted, 0.2)
+    assert not set(device.commands) & (LEGACY_SETS | IG1_SETS)
+    assert device.fields == ("quaternion",) and device.rate_hz == 50 and device.streaming
+
+
+def test_record_is_told_to_choose_a_rate_and_stream_to_resample(tmp_path):
+    from gyronet.deploy.stream.lpbus_setup import start_lpbus
+
+    setup = LpBusSetup(configure=True, rate_hz=7, timeout_s=0.2)
+    with pytest.raises(SensorError, match="choose lpbus.rate_hz from these rates") as recording:
+        start_lpbus(FakePort(EmulatedLpms()), "sensor", setup)
+    assert "resample" not in str(recording.value)
+    with pytest.raises(SensorError, match="pass resample=true"):
+        start_lpbus(FakePort(EmulatedLpms()), "sensor", setup, meta={"fs_hz": 7})
+
+
 def test_ig1_above_its_timestamp_clock_is_refused():
     with pytest.raises(SensorError, match="1000 Hz, above its 500 Hz timestamp clock"):
         configure_sensor(FakePort(EmulatedLpms(model="LPMS-IG1-RS232", rate_hz=1000)),

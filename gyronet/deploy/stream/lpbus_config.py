@@ -10,7 +10,8 @@ and their sources are in :mod:`.lpbus_legacy` and :mod:`.lpbus_ig1`):
 3. the output register (legacy 4, IG1 31), stream rate (legacy register bits 0-2, IG1 35),
    precision (legacy bit 22, IG1 137), units (IG1 37) and gyro auto-calibration (legacy bit 30,
    IG1 65);
-4. where they differ from what is asked, the sets (legacy 10, 11, 75, 23; IG1 30, 34, 136, 64),
+4. every wanted setting checked (a rate the sensor has, a precision it takes) before any is sent,
+   so a refusal leaves the sensor as it was found; then, where they differ from what is asked, the sets (legacy 10, 11, 75, 23; IG1 30, 34, 136, 64),
    each acknowledged, then the registers read again: what the sensor reports, not what was asked,
    makes the layout;
 5. optionally ``WRITE_REGISTERS`` (legacy 15, IG1 4) to keep it over a power cycle; stream mode (7).
@@ -71,6 +72,7 @@ class Wanted:
     timestamp_hz: float | None = None  # overrides the generation's clock (firmware the references do not cover)
     sensor_id: int | None = None
     any_rate: bool = False  # a rate the sensor lacks: keep its own (true) or refuse (false)
+    rate_option: str | None = "resample=true"  # the command's option that keeps the sensor's rate; None: it has none
 
 
 def configure_sensor(port, wanted: Wanted, timeout_s: float = 1.0) -> SensorInfo:
@@ -119,13 +121,15 @@ def _legacy(link: LpBusLink, wanted: Wanted) -> SensorInfo:
     patch, minor, major = struct.unpack("<3i", version)
     register = link.ask_int(legacy.GET_CONFIG, "GET_CONFIG")
     changed: list[str] = []
-    if wanted.fields is not None:
-        asked = _check(lambda: LpBusLayout(fields=wanted.fields), name)
+    # every setting checked before the first is sent: a refusal leaves the sensor as it was
+    asked = None if wanted.fields is None else _check(lambda: LpBusLayout(fields=wanted.fields), name)
+    rate = _rate_to_set(legacy.RATES_HZ, wanted, legacy.rate_hz(register), name)
+    _check_precision(wanted, name)
+    if asked is not None:
         bits = asked.config_register & legacy.OUTPUT_BITS
         if register & legacy.OUTPUT_BITS != bits:
             link.set_int(legacy.SET_TRANSMIT_DATA, "SET_TRANSMIT_DATA", bits)
             changed.append(f"outputs {list(asked.fields)}")
-    rate = _rate_to_set(legacy.RATES_HZ, wanted, legacy.rate_hz(register), name)
     if rate is not None:
         link.set_int(legacy.SET_STREAM_FREQ, "SET_STREAM_FREQ", rate)
         changed.append(f"stream rate {rate} Hz")
@@ -154,13 +158,18 @@ def _ig1(link: LpBusLink, wanted: Wanted, firmware: str) -> SensorInfo:
     primary = 1 if model in ig1.SECOND_GYRO_PRIMARY else 0
     changed: list[str] = []
     register = link.ask_int(ig1.GET_TRANSMIT_DATA, "GET_IMU_TRANSMIT_DATA")
-    if wanted.fields is not None:
-        asked = _check(lambda: LpBusLayout(fields=wanted.fields, generation="ig1", primary_gyro=primary), model)
-        if register != asked.config_register:
-            link.set_int(ig1.SET_TRANSMIT_DATA, "SET_IMU_TRANSMIT_DATA", asked.config_register)
-            changed.append(f"outputs {list(asked.fields)}")
+    # every setting checked before the first is sent: a refusal leaves the sensor as it was
+    asked = None if wanted.fields is None else _check(
+        lambda: LpBusLayout(fields=wanted.fields, generation="ig1", primary_gyro=primary), model)
     rate = None if wanted.rate_hz is None else _rate_to_set(
         ig1.RATES_HZ, wanted, link.ask_int(ig1.GET_STREAM_FREQ, "GET_STREAM_FREQ"), model)
+    _check_precision(wanted, model)
+    ticks_hz = wanted.timestamp_hz or ig1.TIMESTAMP_HZ
+    if rate is not None and rate > ticks_hz:
+        raise _above_clock(model, rate, ticks_hz, "would stream")
+    if asked is not None and register != asked.config_register:
+        link.set_int(ig1.SET_TRANSMIT_DATA, "SET_IMU_TRANSMIT_DATA", asked.config_register)
+        changed.append(f"outputs {list(asked.fields)}")
     if rate is not None:
         link.set_int(ig1.SET_STREAM_FREQ, "SET_STREAM_FREQ", rate)
         changed.append(f"stream rate {rate} Hz")
@@ -184,11 +193,8 @@ def _ig1(link: LpBusLink, wanted: Wanted, firmware: str) -> SensorInfo:
                           "1 (32-bit float) (LpmsIG1Registers.h)")
     if radians not in (0, 1):
         raise SensorError(f"{model}: GET_DEGRAD_OUTPUT is {radians}; known: 0 (deg), 1 (rad) (LpmsIG1.cpp)")
-    ticks_hz = wanted.timestamp_hz or ig1.TIMESTAMP_HZ
     if rate > ticks_hz:
-        raise SensorError(f"{model} streams at {rate} Hz, above its {ticks_hz:g} Hz timestamp clock (OpenZen "
-                          "ImuIg1Component.cpp: count * 0.002 s): frames would share a time; set lpbus.rate_hz "
-                          "<= 500, or lpbus.timestamp_hz to the rate your firmware's counter runs at")
+        raise _above_clock(model, rate, ticks_hz)
     layout = _check(lambda: LpBusLayout.from_transmit_register(
         register, precision=16 if code == ig1.PRECISION_FIXED_16BIT else 32, primary_gyro=primary,
         radians=bool(radians), timestamp_hz=ticks_hz, sensor_id=wanted.sensor_id), model)
@@ -205,11 +211,24 @@ def _rate_to_set(rates_hz: tuple[int, ...], wanted: Wanted, current_hz: float, m
         if abs(rate - wanted.rate_hz) < 1e-9:
             return rate
     message = f"{model} streams at {', '.join(map(str, rates_hz))} Hz, not {wanted.rate_hz:g} Hz"
+    if wanted.rate_option is None:
+        raise SensorError(message + "; choose lpbus.rate_hz from these rates (nothing was changed on the sensor)")
     if not wanted.any_rate:
-        raise SensorError(message + "; pass resample=true to keep the sensor's own rate "
+        raise SensorError(message + f"; pass {wanted.rate_option} to keep the sensor's own rate "
                                     f"({current_hz:g} Hz) and run the feature filters at it")
-    log.warning("%s: keeping its own %g Hz (resample=true)", message, current_hz)
+    log.warning("%s: keeping its own %g Hz (%s)", message, current_hz, wanted.rate_option)
     return None
+
+
+def _check_precision(wanted: Wanted, model: str) -> None:
+    if wanted.precision not in (None, 16, 32):
+        raise SensorError(f"{model}: lpbus.precision is 16 or 32 (bits per value), not {wanted.precision!r}")
+
+
+def _above_clock(model: str, rate: float, ticks_hz: float, verb: str = "streams") -> SensorError:
+    return SensorError(f"{model} {verb} at {rate} Hz, above its {ticks_hz:g} Hz timestamp clock (OpenZen "
+                       "ImuIg1Component.cpp: count * 0.002 s): frames would share a time; set lpbus.rate_hz "
+                       "<= 500, or lpbus.timestamp_hz to the rate your firmware's counter runs at")
 
 
 def _verify(info: SensorInfo, wanted: Wanted, register_text: str) -> None:

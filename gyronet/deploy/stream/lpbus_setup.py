@@ -183,7 +183,8 @@ def _set_up(port, port_name: str, setup: LpBusSetup, fs_hz: float | None, resamp
     """Configure the sensor on ``port``; refuse a rate the bundle cannot take; log it all (``report``)."""
     rate = setup.rate_hz if setup.rate_hz is not None else fs_hz
     wanted = Wanted(setup.fields, rate, setup.precision, setup.gyro_autocalibration, setup.save,
-                    setup.timestamp_hz, setup.sensor_id, any_rate=resample)
+                    setup.timestamp_hz, setup.sensor_id, any_rate=resample,
+                    rate_option=None if fs_hz is None else "resample=true")  # record.py has no resample
     try:
         info = configure_sensor(port, wanted, setup.timeout_s)
     except SensorError as err:
