@@ -1,4 +1,5 @@
 """The simulator: chamber profiles, die temperature, drift, noise figures, effects, files, script."""
+import re
 import importlib.util
 import json
 import os
@@ -644,3 +645,34 @@ def test_script_passes_the_run_settings_through(tmp_path):
     assert 150 < len(recording) < 200 and np.allclose(recording.columns["acc_y_g"].mean(), -1, atol=0.01)
     assert "turn_on_bias_x_dps" in truth.columns and "g_sensitivity_z_dps" in truth.columns
     assert "run" in truth.meta and "run" not in recording.meta
+
+
+@pytest.mark.parametrize("kind, options, refused", [
+    ("paper", {"rate_c_per_min": 0}, "rate_c_per_min must be more than 0"),  # ZeroDivisionError
+    ("paper", {"rate_c_per_min": -1}, "rate_c_per_min must be more than 0"),  # ramps back in time, exit 0
+    ("cycle", {"rate_c_per_min": -1}, "rate_c_per_min must be more than 0"),
+    ("paper", {"step_c": 0}, "step_c must be more than 0"),
+    ("cycle", {"step_c": -5}, "step_c must be at least 0"),
+    ("paper", {"dwell_s": -5}, "dwell_s must be at least 0"),
+    ("random", {"dwell_s": -5}, "dwell_s must be at least 0"),  # TypeError
+    ("random", {"rate_c_per_min": [2.0, 0.5]}, "low <= high"),
+    ("random", {"dwell_s": "abc"}, "dwell_s must be a number or a [low, high] range"),
+    ("paper", {"corner_s": -1}, "corner_s must be at least 0"),
+])
+def test_profile_options_that_would_give_a_wrong_history_are_refused(kind, options, refused):
+    with pytest.raises(GyronetError, match=re.escape(refused)):
+        chamber_profile(kind, 1.0, np.random.default_rng(0), **options)
+
+
+def test_a_random_profile_takes_one_number_as_a_fixed_dwell():
+    time_s, _ = chamber_profile("random", 1.0, np.random.default_rng(0), duration_s=7200, dwell_s=300)
+    assert len(time_s) == 7200
+
+
+def test_negative_seeds_and_a_sample_count_beyond_memory_are_one_line():
+    with pytest.raises(GyronetError, match="seed must be 0 or more, got -1"):
+        simulate("constant", fs_hz=1.0, duration_s=100, seed=-1)
+    with pytest.raises(GyronetError, match="sensor_seed must be 0 or more, got -1"):
+        simulate("constant", fs_hz=1.0, duration_s=100, sensor_seed=-1)
+    with pytest.raises(GyronetError, match="4.56e[+]13 samples, more than the simulator's"):  # a 447 GiB MemoryError
+        chamber_profile("paper", 1e9)

@@ -87,6 +87,9 @@ def simulate(profile: str = "paper", fs_hz: float = 10.0, seed: int = 0, sensor_
     earth_spec = as_spec(EarthSpec, earth, "earth")
     accel_spec = as_spec(AccelSpec, accel, "accel")
     noise_seed = int(seed if noise_seed is None else noise_seed)
+    for name, value in (("seed", seed), ("sensor_seed", sensor_seed), ("noise_seed", noise_seed)):
+        if int(value) < 0:  # numpy's generators take no negative seed
+            raise GyronetError(f"{name} must be 0 or more, got {value}")
     time_s, chamber_c = chamber_profile(profile, fs_hz, np.random.default_rng([int(seed), 1]),
                                         duration_s=duration_s, **dict(profile_options or {}))
     n = len(time_s)

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import inspect
 import logging
+import math
 from typing import Callable, Sequence
 
 import numpy as np
@@ -29,6 +30,8 @@ from gyronet.errors import GyronetError
 log = logging.getLogger(__name__)
 
 Knots = tuple[np.ndarray, np.ndarray]
+MAX_SAMPLES = 50_000_000  # about 8 GB of recording and truth columns: 58 days at 10 Hz, 14 h at 1 kHz
+RANGES = {"random": ("rate_c_per_min", "dwell_s")}  # options given as (low, high); a number: low = high
 
 
 def _knots_from_setpoints(setpoints_c: Sequence[float], rates_c_per_min: Sequence[float],
@@ -157,15 +160,20 @@ def chamber_profile(kind: str, fs_hz: float, rng: np.random.Generator | None = N
     if unknown:
         raise GyronetError(f"profile {kind!r}: unknown option(s) {', '.join(unknown)}; known: "
                            f"{', '.join(known + ['corner_s'])}")
+    opts = _checked_options(kind, {**opts, "corner_s": corner_s})
+    corner_s = opts.pop("corner_s")
     if duration_s is None:
         duration_s = _DEFAULT_DURATION_S.get(kind)
     if duration_s is not None and not duration_s > 0:
         raise GyronetError(f"duration_s must be positive, got {duration_s}")
     knot_s, knot_c = _BUILDERS[kind](rng, duration_s=duration_s, **opts)
     total_s = float(knot_s[-1]) if duration_s is None else float(duration_s)
-    n_samples = int(np.floor(total_s * fs_hz + 1e-6))
+    n_samples = math.floor(total_s * fs_hz + 1e-6)
     if n_samples < 2:
         raise GyronetError(f"profile {kind!r}: {total_s} s at {fs_hz} Hz gives fewer than 2 samples")
+    if n_samples > MAX_SAMPLES:
+        raise GyronetError(f"profile {kind!r}: {total_s:g} s at {fs_hz:g} Hz is {n_samples:.3g} samples, more than "
+                           f"the simulator's {MAX_SAMPLES:.0e} (about 8 GB): lower fs_hz or duration_s")
     time_s = np.arange(n_samples) / fs_hz
     chamber_c = np.interp(time_s, knot_s, knot_c)
     window = int(round(corner_s * fs_hz)) | 1  # odd, so the average is centred
@@ -173,3 +181,30 @@ def chamber_profile(kind: str, fs_hz: float, rng: np.random.Generator | None = N
         chamber_c = uniform_filter1d(chamber_c, size=window, mode="nearest")
     log.debug("profile %s: %d samples, %.3f h", kind, n_samples, total_s / 3600)
     return time_s, chamber_c
+
+
+def _checked_options(kind: str, opts: dict) -> dict:
+    """``opts`` with the rates, dwells and steps checked: a zero rate divided by zero, a negative one ran the ramps
+    backwards in time (a wrong history, exit 0), a number where ``random`` takes a range was a TypeError."""
+    # option: (least value, whether it may equal it)
+    limits = {"rate_c_per_min": (0.0, False), "dwell_s": (0.0, True), "step_c": (0.0, kind == "cycle"),
+              "min_step_c": (0.0, True), "corner_s": (0.0, True)}
+    checked = dict(opts)
+    for name, (least, equal_ok) in limits.items():
+        if name not in opts or (name == "step_c" and kind == "cycle" and opts[name] is None):
+            continue
+        ranged = name in RANGES.get(kind, ())
+        value = opts[name]
+        values = list(value) if isinstance(value, (list, tuple)) else [value]
+        if ranged and len(values) == 1:
+            values *= 2
+        if len(values) != (2 if ranged else 1) or any(
+                isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) for v in values):
+            form = "a number or a [low, high] range" if ranged else "a number"
+            raise GyronetError(f"profile {kind!r}: {name} must be {form}, got {value!r}")
+        if any(v < least or (v == least and not equal_ok) for v in values) or (ranged and values[0] > values[1]):
+            bound = f"{'at least' if equal_ok else 'more than'} {least:g}"
+            raise GyronetError(f"profile {kind!r}: {name} must be {bound}{' (low <= high)' if ranged else ''}, "
+                               f"got {value!r}")
+        checked[name] = tuple(float(v) for v in values) if ranged else float(values[0])
+    return checked
