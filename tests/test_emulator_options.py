@@ -53,6 +53,10 @@ def cases(work: Path, victim: Path, recording: Path) -> dict[str, tuple[list[str
     return {
         "link_is_a_file": ([*base, f"link={victim}"], (str(victim), "not a symlink")),
         "link_folder_missing": ([*base, f"link={work}/nope/sensor"], ("link=", "does not exist")),
+        "speed_text": ([*base, "speed=abc"], ("speed must be a number, got 'abc'",)),
+        "speed_negative": ([*base, "speed=-1"], ("speed must be 0",)),
+        "fault_rate": ([*base, "faults.corrupt_rate=2"], ("faults: fault rates must be in [0, 1]",)),
+        "unknown_model": ([*base, "sensor.model=LPMS-XYZ"], ("no emulated sensor 'LPMS-XYZ'", "LPMS-CU2")),
     }
 
 

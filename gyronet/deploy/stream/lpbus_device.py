@@ -22,6 +22,7 @@ from gyronet.deploy.stream.lpbus_layout import DEFAULT_FIELDS, LpBusLayout
 from gyronet.deploy.stream.lpbus_link import FrameReader
 
 IG1_MODELS = ("LPMS-IG1", "LPMS-BE1", "LPMS-ME1")  # emulator only: real sensors are told apart by command 21
+LEGACY_MODELS = ("LPMS-CU2", "LPMS-B2", "LPMS-USBAL2")  # the legacy sensors it plays (an unknown name was one silently)
 
 
 @dataclass
@@ -55,6 +56,9 @@ class EmulatedLpms:
     def __post_init__(self) -> None:
         if not self.model:
             raise ValueError("an emulated LPMS needs a model name (LPMS-CU2, LPMS-IG1-RS232, ...)")
+        if self.model not in LEGACY_MODELS and not self.model.startswith(IG1_MODELS):
+            raise ValueError(f"no emulated sensor {self.model!r}; known: {', '.join(LEGACY_MODELS)} (legacy), names "
+                             f"starting {', '.join(IG1_MODELS)} (IG1 family)")
         self.fields = tuple(self.fields) if self.fields is not None else DEFAULT_FIELDS
         self._reader = FrameReader()
         self.layout()  # the settings must make a layout
