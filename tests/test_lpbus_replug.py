@@ -166,3 +166,23 @@ def test_ctrl_c_without_a_stop_poll_still_writes_the_chunk_in_flight(tmp_path, m
     summary = record.record_stream("loop://", tmp_path / "run.csv", lpbus=LpBusSetup(configure=False))
     assert summary["stopped"] == "interrupted" and summary["n_samples"] == 25
     assert len(load_recording(tmp_path / "run.csv")) == 25
+
+
+def test_record_keeps_the_length_of_an_unplug_as_the_break_in_time(lpbus_recording, tmp_path):
+    """A clock restart after a 3 s unplug: time_s went on 1.01 s later (one interval and restart_gap_s), so a
+    20-minute unplug during a ramp read as a jump of degrees in a second."""
+    from gyronet.deploy.stream.record import record_stream
+
+    first, second = halves(lpbus_recording)
+    for columns in (first, second):
+        columns["time_s"] = np.arange(len(columns["time_s"])) / 100.0
+    link = tmp_path / "sensor"
+    thread = started(play_in_thread(None, link, device=power_on("LPMS-BE1"), columns=first, port_down_s=3.0,
+                                    replugs=[(power_on("LPMS-BE1"), second)]), link)
+    summary = record_stream(str(link), tmp_path / "run.csv", lpbus=LpBusSetup(configure=True, rate_hz=100),
+                            reconnect={**FAST, "give_up_s": 10.0})
+    thread.join(10)
+    time_s = load_recording(tmp_path / "run.csv").columns["time_s"]
+    assert summary["clock_restarts"] == 1 and len(time_s) == N_SAMPLES
+    assert 3.0 <= time_s[SPLIT] - time_s[SPLIT - 1] < 10.0
+    np.testing.assert_allclose(np.diff(time_s[SPLIT:]), 0.01, atol=1e-6)

@@ -6,8 +6,9 @@ what the sensor reported is written as the CSV's ``#`` metadata (``fs_hz``, ``se
 ``firmware``, ``gyro_source=raw``, ``gyro_autocalibration``, ``lpbus``). Rows are the decoded
 frames (CONTRACT.md section 1), each value as the shortest text that reads back to the same
 number, one ``os.write`` per line, so a kill leaves whole lines. A sensor clock that restarts (a
-replug) keeps ``time_s`` increasing: the new segment continues one interval plus ``restart_gap_s``
-after the last sample, a break in the record. A sensor that comes back after the port was lost is
+replug) keeps ``time_s`` increasing: the new segment starts as long after the last sample as the host's
+clock says passed between them (a 20-minute unplug is a 20-minute break, not a 1 s jump), and at
+least one interval plus ``restart_gap_s`` after it, a break in the record. A sensor that comes back after the port was lost is
 set up again (or its first frames checked again) before its rows are written, and refused if it is
 not the one set up at the start.
 """
@@ -87,7 +88,7 @@ def record_stream(port: str, output: str | Path, baud: int = 921600, lpbus: LpBu
     parser = start.parser(SampleCheck(**dict(clock or {})))
     items = read_samples(opened, parser, url=port, baud=baud, timeout_s=read_timeout_s, should_stop=should_stop,
                          on_reopen=start.reopen_hook(parser, port), **dict(reconnect or {}))
-    stopped, offset_s, last_s, interval_s, restarts = "port_gone", 0.0, None, 0.0, 0
+    stopped, offset_s, last_s, interval_s, restarts, last_host_s = "port_gone", 0.0, None, 0.0, 0, 0.0
     intervals = Counter()  # sample intervals to 4 digits: their median is the rate the file's reader will see
     refusal: Exception | None = None
     progress_at = started + PROGRESS_S  # a line a minute: a chamber run is hours of otherwise silent recording
@@ -99,14 +100,16 @@ def record_stream(port: str, output: str | Path, baud: int = 921600, lpbus: LpBu
                 continue
             if item.new_segment and last_s is not None:
                 restarts += 1
-                offset_s = last_s + interval_s + restart_gap_s - item.time_s
+                # the outage as the host timed it: the sensor's restarted clock cannot say how long it was
+                gap_s = max(interval_s + restart_gap_s, time.monotonic() - last_host_s)
+                offset_s = last_s + gap_s - item.time_s
             row = item.row()
             time_s = row["time_s"] + offset_s
             if last_s is not None and not item.new_segment:
                 interval_s = time_s - last_s
                 intervals[float(f"{interval_s:.4g}")] += 1
             out.write([time_s, *(row[c] for c in start.layout.columns[1:])])
-            last_s = time_s
+            last_s, last_host_s = time_s, time.monotonic()
             if time.monotonic() >= progress_at:
                 progress_at += PROGRESS_S
                 log.info("recorded %d samples, up to time_s=%.0f, %.2f degC now; %s", out.n_rows, time_s,
