@@ -21,7 +21,8 @@ What passes nonetheless: a misread whose gyro, read in the accelerometer's place
 about 1 deg/s (an IG1 read as legacy; its 500 Hz clock read at 400 Hz still fails the live rate
 check unless ``resample=true``), a clock misread whose rate is another LPMS rate (an IG1 at 250
 Hz read at 400 Hz ticks shows 200 Hz), and the field order of a layout without acceleration or
-quaternion: that the check could not be made is logged. Configure the sensor
+quaternion: that the check could not be made is logged. A legacy stream at 400 Hz by 400 Hz ticks may be
+one at 800 Hz (whose counter ticks at 800 Hz): that is logged too, naming ``lpbus.timestamp_hz``. Configure the sensor
 (``lpbus.configure=true``) to be sure.
 """
 from __future__ import annotations
@@ -95,6 +96,12 @@ class FirstFrames:
                               f"lpbus.timestamp_hz={clock:g}, or lpbus.configure=true)"
                               + (", unless the sensor streams at another rate than the bundle's (resample=true)"
                                  if self.expected_hz is not None else ""))
+        if layout.generation == "legacy" and layout.timestamp == "count" and layout.timestamp_hz == 400 \
+                and _near(measured_hz, (400.0,)) is not None:
+            # one tick a frame: 400 Hz, or 800 Hz whose counter ticks at 800 Hz (OpenZen); the stamps cannot tell
+            log.warning("%s: the stamps show 400 Hz at 400 Hz ticks, as a legacy sensor at 800 Hz (its counter ticks "
+                        "at 800 Hz) would too: if it streams at 800 Hz, set lpbus.timestamp_hz=800 (or "
+                        "lpbus.configure=true), else every time is doubled", self.source)
         if "acc_x_g" in layout.columns:
             norms = [math.sqrt(sum(v[f"acc_{a}_g"] ** 2 for a in "xyz")) for _, v in self.frames]
             median = _median(norms)
