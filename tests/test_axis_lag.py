@@ -138,6 +138,7 @@ def test_a_slot_holding_a_copy_of_the_temperature_holds_its_edge_value_too():
         plain.load_state_dict({k: v for k, v in net.state_dict().items() if k not in ("group_columns", "axis_group")},
                               strict=False)
         torch.testing.assert_close(net(inside)[:, 1], plain(inside[:, columns[1]])[:, 1], rtol=0, atol=0)
+        assert net.to("meta")(steady.to("meta")).shape == (4, 3)  # the mask is made where the inputs are
 
 
 def test_axis_columns_are_checked():

@@ -176,7 +176,7 @@ class RBFNet(nn.Module):
         if self.clamp:
             t = self.temp_index
             if not self.identity_columns:  # the temperature's copies move with it to the edge, in their own units
-                copies = (self.group_columns[g] == self.group_columns[g][t]) & (torch.arange(self.n_inputs) != t)
+                copies = (self.group_columns[g] == self.group_columns[g][t]) & (torch.arange(self.n_inputs, device=z.device) != t)
                 z = torch.where(copies, z + (zc[:, t:t + 1] - z[:, t:t + 1]) * (self.x_std[t] / self.x_std), z)
             z = torch.cat([z[:, :t], zc[:, t:t + 1], z[:, t + 1:]], dim=1)
         temp = zc[:, self.temp_index:self.temp_index + 1]
