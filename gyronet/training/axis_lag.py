@@ -162,8 +162,8 @@ def _every_block(data: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndar
 def with_features(data: Any, features: list) -> Any:
     """The same training data (one recording or several runs, the same split) with other features; what
     loading it says (its size, its glitches) was said the first time, so only errors are logged again."""
-    quiet, level = logging.getLogger("gyronet"), logging.getLogger("gyronet").level
-    quiet.setLevel(logging.ERROR)
+    level = logging.root.manager.disable  # every logger, a child with its own level too (hydra.verbose=...)
+    logging.disable(max(level, logging.WARNING))
     try:
         if isinstance(data, RunsData):
             runs = load_runs(data.paths, features, data.static_rate_dps)
@@ -171,7 +171,7 @@ def with_features(data: Any, features: list) -> Any:
                             data.val_startup_s)
         return dataclasses.replace(data, features=features)
     finally:
-        quiet.setLevel(level)
+        logging.disable(level)
 
 
 def _basis(x: np.ndarray, centres: np.ndarray, low: float, high: float) -> np.ndarray:
