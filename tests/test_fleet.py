@@ -12,7 +12,8 @@ import pytest
 
 from gyronet.recordings.data import load_recording
 from gyronet.errors import GyronetError
-from gyronet.training.fleet import (UNITS_FILE, find_units, fleet_table, sweep_overrides, to_markdown, write_units)
+from gyronet.training.fleet import (UNITS_FILE, find_units, fleet_table, set_aside_outputs, sweep_overrides, to_markdown,
+                                   write_units)
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "scripts"))
@@ -59,6 +60,22 @@ def test_a_unit_keeps_its_name_and_the_others_when_run_again(tmp_path, monkeypat
         "line1/a": "units/line1/a.csv", "line2/b": "units/line2/b.csv"}
     with pytest.raises(GyronetError, match=r"units/line2/b.csv is unit 'line2/b' in .*, here 'b'"):
         write_units("S", find_units("units/line2/b.csv")[0])
+    for spelled in ("./units/line2/b.csv", str(tmp_path / "units/line2/b.csv")):  # the same file, spelled otherwise
+        with pytest.raises(GyronetError, match="is unit 'line2/b'"):
+            write_units("S", {"b": spelled})
+
+
+def test_failed_reruns_keep_the_last_good_run_in_previous(tmp_path):
+    """A failed re-run leaves tb/; the next re-run replaced previous/ (the good bundle) with that tb/ alone."""
+    unit = tmp_path / "u"
+    (unit / "compensator").mkdir(parents=True)
+    (unit / "report.json").write_text("good")
+    set_aside_outputs(unit)  # the re-run starts: the good run is set aside
+    for _ in range(2):  # two re-runs that fail after writing tb/
+        (unit / "tb").mkdir()
+        set_aside_outputs(unit)
+        assert sorted(p.name for p in unit.iterdir()) == ["previous"]
+        assert (unit / "previous" / "report.json").read_text() == "good" and (unit / "previous" / "compensator").is_dir()
 
 
 def test_spec_range_is_checked_before_anything_runs(tmp_path):

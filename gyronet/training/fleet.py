@@ -100,7 +100,8 @@ def write_units(sweep_dir: str | os.PathLike, units: Mapping[str, str]) -> Path:
     the units already listed there (a re-run of some units keeps the others in the table)."""
     path = Path(sweep_dir) / UNITS_FILE
     listed = json.loads(path.read_text())["units"] if path.is_file() else {}
-    renamed = [(old, name) for old, p in listed.items() for name, q in units.items() if p == q and old != name]
+    same = lambda p, q: os.path.realpath(p) == os.path.realpath(q)  # noqa: E731 - ./units/a.csv is units/a.csv
+    renamed = [(old, name) for old, p in listed.items() for name, q in units.items() if same(p, q) and old != name]
     if renamed:
         old, name = renamed[0]
         raise GyronetError(f"{units[name]} is unit {old!r} in {path}, here {name!r}: give the pattern the fleet's "
@@ -111,15 +112,22 @@ def write_units(sweep_dir: str | os.PathLike, units: Mapping[str, str]) -> Path:
 
 
 def set_aside_outputs(job_dir: str | os.PathLike) -> None:
-    """Move a unit's outputs of an earlier run into ``<job dir>/previous/`` (replacing older ones there) as its job
-    starts again, so a re-run that fails reads as failed in the table, not as the earlier run's bundle."""
+    """As a unit's job starts again: a complete earlier run (report and bundle) moves into ``<job dir>/previous/``,
+    replacing the one there; a failed run's leftovers (its ``tb/``) are removed, so ``previous/`` keeps the last
+    good run through any number of failed re-runs, and the table never reads an earlier run as this one's."""
     job_dir = Path(job_dir)
     found = [job_dir / name for name in _OUTPUTS if (job_dir / name).exists()]
-    if found:
+    complete = (job_dir / "report.json").is_file() and (job_dir / "compensator").is_dir()
+    if complete:
         shutil.rmtree(job_dir / PREVIOUS, ignore_errors=True)
         (job_dir / PREVIOUS).mkdir()
-        for output in found:
+    for output in found:
+        if complete:
             output.rename(job_dir / PREVIOUS / output.name)
+        elif output.is_dir():
+            shutil.rmtree(output)
+        else:
+            output.unlink()
 
 
 def check_spec_range(spec: Any, name: str = "spec_range_c") -> list[float] | None:
