@@ -129,10 +129,13 @@ def test_record_is_told_to_choose_a_rate_and_stream_to_resample(tmp_path):
         start_lpbus(FakePort(EmulatedLpms()), "sensor", setup, meta={"fs_hz": 7})
 
 
-def test_ig1_above_its_timestamp_clock_is_refused():
+@pytest.mark.parametrize("rate_hz", [None, 1000])  # kept as it is, or asked for what it already streams at
+def test_ig1_above_its_timestamp_clock_is_refused_before_anything_is_sent(rate_hz):
+    device = EmulatedLpms(model="LPMS-IG1-RS232", rate_hz=1000, fields=("quaternion",), precision=16,
+                          gyro_autocalibration=True)
     with pytest.raises(SensorError, match="1000 Hz, above its 500 Hz timestamp clock"):
-        configure_sensor(FakePort(EmulatedLpms(model="LPMS-IG1-RS232", rate_hz=1000)),
-                         replace(WANTED, rate_hz=None), 0.2)
+        configure_sensor(FakePort(device), replace(WANTED, rate_hz=rate_hz), 0.2)
+    assert not set(device.commands) & IG1_SETS and device.fields == ("quaternion",)
 
 
 class StrangeIg1(EmulatedLpms):

@@ -161,12 +161,12 @@ def _ig1(link: LpBusLink, wanted: Wanted, firmware: str) -> SensorInfo:
     # every setting checked before the first is sent: a refusal leaves the sensor as it was
     asked = None if wanted.fields is None else _check(
         lambda: LpBusLayout(fields=wanted.fields, generation="ig1", primary_gyro=primary), model)
-    rate = None if wanted.rate_hz is None else _rate_to_set(
-        ig1.RATES_HZ, wanted, link.ask_int(ig1.GET_STREAM_FREQ, "GET_STREAM_FREQ"), model)
+    current_hz = link.ask_int(ig1.GET_STREAM_FREQ, "GET_STREAM_FREQ")
+    rate = _rate_to_set(ig1.RATES_HZ, wanted, current_hz, model)
     _check_precision(wanted, model)
     ticks_hz = wanted.timestamp_hz or ig1.TIMESTAMP_HZ
-    if rate is not None and rate > ticks_hz:
-        raise _above_clock(model, rate, ticks_hz, "would stream")
+    if (rate or current_hz) > ticks_hz:  # the rate it would stream at, set or kept
+        raise _above_clock(model, rate or current_hz, ticks_hz, "would stream")
     if asked is not None and register != asked.config_register:
         link.set_int(ig1.SET_TRANSMIT_DATA, "SET_IMU_TRANSMIT_DATA", asked.config_register)
         changed.append(f"outputs {list(asked.fields)}")
