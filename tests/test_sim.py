@@ -676,3 +676,8 @@ def test_negative_seeds_and_a_sample_count_beyond_memory_are_one_line():
         simulate("constant", fs_hz=1.0, duration_s=100, sensor_seed=-1)
     with pytest.raises(GyronetError, match="4.56e[+]13 samples, more than the simulator's"):  # a 447 GiB MemoryError
         chamber_profile("paper", 1e9)
+    with pytest.raises(GyronetError, match="inf samples, more than the simulator's"):  # an OverflowError
+        chamber_profile("paper", 1e308)
+    for duration_s in (float("inf"), float("nan"), -1.0):
+        with pytest.raises(GyronetError, match="duration_s must be a positive, finite number of seconds"):
+            chamber_profile("random", 1.0, np.random.default_rng(0), duration_s=duration_s)

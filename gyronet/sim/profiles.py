@@ -164,16 +164,17 @@ def chamber_profile(kind: str, fs_hz: float, rng: np.random.Generator | None = N
     corner_s = opts.pop("corner_s")
     if duration_s is None:
         duration_s = _DEFAULT_DURATION_S.get(kind)
-    if duration_s is not None and not duration_s > 0:
-        raise GyronetError(f"duration_s must be positive, got {duration_s}")
+    if duration_s is not None and not (duration_s > 0 and math.isfinite(duration_s)):
+        raise GyronetError(f"duration_s must be a positive, finite number of seconds, got {duration_s}")
     knot_s, knot_c = _BUILDERS[kind](rng, duration_s=duration_s, **opts)
     total_s = float(knot_s[-1]) if duration_s is None else float(duration_s)
-    n_samples = math.floor(total_s * fs_hz + 1e-6)
-    if n_samples < 2:
-        raise GyronetError(f"profile {kind!r}: {total_s} s at {fs_hz} Hz gives fewer than 2 samples")
-    if n_samples > MAX_SAMPLES:
+    n_samples = total_s * fs_hz + 1e-6  # a float first: fs_hz=1e308 is no integer to floor
+    if not n_samples <= MAX_SAMPLES:
         raise GyronetError(f"profile {kind!r}: {total_s:g} s at {fs_hz:g} Hz is {n_samples:.3g} samples, more than "
                            f"the simulator's {MAX_SAMPLES:.0e} (about 8 GB): lower fs_hz or duration_s")
+    n_samples = math.floor(n_samples)
+    if n_samples < 2:
+        raise GyronetError(f"profile {kind!r}: {total_s} s at {fs_hz} Hz gives fewer than 2 samples")
     time_s = np.arange(n_samples) / fs_hz
     chamber_c = np.interp(time_s, knot_s, knot_c)
     window = int(round(corner_s * fs_hz)) | 1  # odd, so the average is centred
