@@ -1,6 +1,7 @@
 """Issue 13, a replug: the sensor comes back power-cycled on a new pty (the emulator's ``replugs``); the
 live path and record.py set it up again, or check its first frames again, or refuse it by name."""
 import logging
+import time
 
 import numpy as np
 import pandas as pd
@@ -186,3 +187,14 @@ def test_record_keeps_the_length_of_an_unplug_as_the_break_in_time(lpbus_recordi
     assert summary["clock_restarts"] == 1 and len(time_s) == N_SAMPLES
     assert 3.0 <= time_s[SPLIT] - time_s[SPLIT - 1] < 10.0
     np.testing.assert_allclose(np.diff(time_s[SPLIT:]), 0.01, atol=1e-6)
+
+
+@pytest.mark.skipif(not hasattr(time, "CLOCK_BOOTTIME"), reason="Linux's boot-time clock")
+def test_an_outage_is_timed_on_a_clock_that_counts_a_suspended_host(monkeypatch):
+    """time.monotonic stops while a laptop sleeps: an unplug over a suspend was written short by the sleep."""
+    from gyronet.deploy.stream import record
+
+    clocks = {time.CLOCK_BOOTTIME: 5000.0, time.CLOCK_MONOTONIC: 200.0}
+    monkeypatch.setattr(time, "clock_gettime", lambda clock: clocks[clock])
+    monkeypatch.setattr(time, "monotonic", lambda: clocks[time.CLOCK_MONOTONIC])
+    assert record._host_s() == 5000.0

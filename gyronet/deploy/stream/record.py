@@ -101,7 +101,7 @@ def record_stream(port: str, output: str | Path, baud: int = 921600, lpbus: LpBu
             if item.new_segment and last_s is not None:
                 restarts += 1
                 # the outage as the host timed it: the sensor's restarted clock cannot say how long it was
-                gap_s = max(interval_s + restart_gap_s, time.monotonic() - last_host_s)
+                gap_s = max(interval_s + restart_gap_s, _host_s() - last_host_s)
                 offset_s = last_s + gap_s - item.time_s
             row = item.row()
             time_s = row["time_s"] + offset_s
@@ -109,7 +109,7 @@ def record_stream(port: str, output: str | Path, baud: int = 921600, lpbus: LpBu
                 interval_s = time_s - last_s
                 intervals[float(f"{interval_s:.4g}")] += 1
             out.write([time_s, *(row[c] for c in start.layout.columns[1:])])
-            last_s, last_host_s = time_s, time.monotonic()
+            last_s, last_host_s = time_s, _host_s()
             if time.monotonic() >= progress_at:
                 progress_at += PROGRESS_S
                 log.info("recorded %d samples, up to time_s=%.0f, %.2f degC now; %s", out.n_rows, time_s,
@@ -148,6 +148,11 @@ def record_stream(port: str, output: str | Path, baud: int = 921600, lpbus: LpBu
     if refusal is not None:
         raise refusal
     return summary
+
+
+def _host_s() -> float:
+    """The host's clock for an outage, s: Linux's boot time counts a suspended laptop's sleep, which monotonic skips."""
+    return time.clock_gettime(time.CLOCK_BOOTTIME) if hasattr(time, "CLOCK_BOOTTIME") else time.monotonic()
 
 
 def _rate_the_stamps_show(out: "_RecordingFile", intervals: Counter) -> float | None:
