@@ -303,12 +303,13 @@ def test_a_stream_faster_than_its_timestamp_clock_says_which_setting():
         parser.feed(frames)
 
 
-@pytest.mark.parametrize("ticks_per_frame, warned", [(1, True), (4, False)])
-def test_listening_at_400_hz_ticks_warns_that_800_hz_reads_the_same(caplog, ticks_per_frame, warned):
-    """A legacy sensor at 800 Hz counts at 800 Hz: read at 400 Hz ticks, it passed as 400 Hz with every time doubled."""
+@pytest.mark.parametrize("ticks_per_frame, given, warned", [(1, False, True), (4, False, False), (1, True, False)])
+def test_listening_at_400_hz_ticks_warns_that_800_hz_reads_the_same(caplog, ticks_per_frame, given, warned):
+    """A legacy sensor at 800 Hz counts at 800 Hz: read at 400 Hz ticks, it passed as 400 Hz with every time doubled
+    (unless the user set lpbus.timestamp_hz=400: then the ticks are known)."""
     frames = b"".join(legacy_frame(i * ticks_per_frame, (0.0, 0.0, 0.0), (0.0, 0.0, 1.0), 25.0) for i in range(20))
     parser = LpBusParser(LpBusLayout())
-    parser.probe = FirstFrames(parser.layout, 20)
+    parser.probe = FirstFrames(parser.layout, 20, clock_given=given)
     caplog.set_level(logging.WARNING, logger="gyronet.deploy.stream.lpbus_probe")
     assert len(parser.feed(frames)) == 20
     assert any("set lpbus.timestamp_hz=800" in r.getMessage() for r in caplog.records) == warned

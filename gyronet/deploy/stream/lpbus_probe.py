@@ -55,16 +55,17 @@ class FirstFrames:
     """Collect the first ``n_frames`` decoded frames and refuse the layout if they do not fit it."""
 
     def __init__(self, layout: LpBusLayout, n_frames: int = 20, source: str = "the stream",
-                 expected_hz: float | None = None):
+                 expected_hz: float | None = None, clock_given: bool = False):
         self.layout, self.n_frames, self.source = layout, max(2, int(n_frames)), source
         self.expected_hz = expected_hz  # the bundle's fs_hz, if any
+        self.clock_given = clock_given  # lpbus.timestamp_hz set by the user: its ticks are not in doubt
         self.frames: list[tuple[float, dict[str, float]]] = []
         self.done = False
 
     def again(self) -> "FirstFrames":
         """The same check, from the first frame again (a reopened port)."""
         source = self.source.removesuffix(AFTER_REOPEN) + AFTER_REOPEN
-        return FirstFrames(self.layout, self.n_frames, source, self.expected_hz)
+        return FirstFrames(self.layout, self.n_frames, source, self.expected_hz, self.clock_given)
 
     def see(self, time_s: float, values: dict[str, float]) -> None:
         """Note one frame; raise ``LayoutError`` once enough frames show the layout is wrong."""
@@ -97,7 +98,7 @@ class FirstFrames:
                               + (", unless the sensor streams at another rate than the bundle's (resample=true)"
                                  if self.expected_hz is not None else ""))
         if layout.generation == "legacy" and layout.timestamp == "count" and layout.timestamp_hz == 400 \
-                and _near(measured_hz, (400.0,)) is not None:
+                and not self.clock_given and _near(measured_hz, (400.0,)) is not None:
             # one tick a frame: 400 Hz, or 800 Hz whose counter ticks at 800 Hz (OpenZen); the stamps cannot tell
             log.warning("%s: the stamps show 400 Hz at 400 Hz ticks, as a legacy sensor at 800 Hz (its counter ticks "
                         "at 800 Hz) would too: if it streams at 800 Hz, set lpbus.timestamp_hz=800 (or "

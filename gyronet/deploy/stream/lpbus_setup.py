@@ -169,7 +169,8 @@ def start_lpbus(port, port_name: str, setup: LpBusSetup, meta: Mapping[str, Any]
     if port is None or not setup.wants_configure(port_name):
         layout = setup.passive_layout()
         expected_hz = None if resample else fs_hz  # with resample, another rate is no sign of a wrong clock
-        probe = FirstFrames(layout, setup.check_frames, port_name, expected_hz) if setup.check_frames > 0 else None
+        probe = FirstFrames(layout, setup.check_frames, port_name, expected_hz, setup.timestamp_hz is not None) \
+            if setup.check_frames > 0 else None
         log.info("%s: listening only (lpbus.configure=%s): %s", port_name, setup.configure, layout.describe())
         return LpBusStart(layout, None, probe)
 
