@@ -26,7 +26,7 @@ def main(cfg: DictConfig) -> float:
     model = instantiate(cfg.model, n_inputs=data.n_features)
     data, model = with_axis_lags(data, lambda n, columns: instantiate(cfg.model, n_inputs=n, axis_columns=columns),
                                  model)
-    writer = make_writer(cfg.logger.log_dir)
+    writer = make_writer(cfg.logger.log_dir, fresh=True)  # a run folder holds one run, as its report.json does
     hparams = {k: v for k, v in OmegaConf.to_container(cfg.model, resolve=True).items() if k != "_target_"}
     try:  # a failed job in a sweep (scored inf) must not leave its writer open
         metrics = train_run(data, model, instantiate(cfg.optim), HydraConfig.get().runtime.output_dir,
@@ -34,7 +34,9 @@ def main(cfg: DictConfig) -> float:
                             kalman_cfg=OmegaConf.to_container(cfg.kalman), eval_paths=list(cfg.eval.paths),
                             eval_block_s=cfg.eval.block_s, writer=writer,
                             hparams={"model": cfg.model._target_.rsplit(".", 1)[-1], **hparams,
-                                     "lr": cfg.optim.get("lr", 0.0), "seed": cfg.seed})
+                                     "lr": cfg.optim.get("lr", 0.0), "seed": cfg.seed,  # and what a sweep searches
+                                     **{f"data.{k}": cfg.data.get(k) for k in ("rate_tau_s", "val_startup_s")},
+                                     **{f"train.{k}": cfg.train.get(k) for k in ("weight_decay", "max_epochs")}})
     finally:
         writer.close()
     if HydraConfig.get().mode != RunMode.MULTIRUN:  # a newcomer's next step, with the start-up window the bar assumes

@@ -10,6 +10,7 @@ from omegaconf import OmegaConf
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
 from gyronet.bundle.compensator import Compensator
+from gyronet.errors import GyronetError
 from gyronet.recordings.data import load_recording, load_truth, write_recording
 from gyronet.training.dataset import block_rmse, static_rate_dps
 from gyronet.training.pipeline import evaluate_paths, load_held_out
@@ -69,6 +70,30 @@ def test_train_script_writes_bundle_report_and_tensorboard(tmp_path, paper_csv, 
             "eval/raw_arw_z_deg_rthr", "eval/ratio_to_floor_y", "data/min_s_per_degc"} <= scalars
     assert {"eval/cycle/allan", "eval/cycle/raw_vs_compensated", "eval/cycle/residual_vs_temperature"} <= images
     assert len(events.Scalars("train/loss")) >= 2
+    from tensorboard.plugins.hparams.plugin_data_pb2 import HParamsPluginData
+
+    experiment = HParamsPluginData.FromString(events.SummaryMetadata("_hparams_/experiment").plugin_data.content)
+    shown = {m.name.tag for m in experiment.experiment.metric_infos}
+    assert {"val/rmse_dps", "eval/ratio_to_floor_x", "eval/compensated_bias_instability_x_deg_hr"} <= shown
+    assert {"data.rate_tau_s", "train.weight_decay", "lr", "seed"} <= {h.name for h in experiment.experiment.hparam_infos}
+
+
+def test_a_run_again_into_its_folder_starts_its_tensorboard_files_afresh(tmp_path):
+    from gyronet.figures.tb import make_writer
+
+    for _ in range(2):
+        writer = make_writer(tmp_path / "tb", fresh=True)
+        writer.add_scalar("train/loss", 1.0, 0)
+        writer.close()
+    assert len(EventAccumulator(str(tmp_path / "tb")).Reload().Scalars("train/loss")) == 1
+
+
+def test_two_held_out_recordings_of_one_name_are_refused(tmp_path, cycle_csv):
+    (tmp_path / "b").mkdir()
+    copy = tmp_path / "b" / "cycle.csv"
+    copy.write_bytes(cycle_csv.read_bytes())
+    with pytest.raises(GyronetError, match="two held-out recordings are named 'cycle'; give each its own file name"):
+        load_held_out([str(cycle_csv), str(copy)])
 
 
 def test_px4_baseline_trains_from_the_command_line(tmp_path, paper_csv):

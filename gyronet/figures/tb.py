@@ -8,10 +8,16 @@ from typing import Any, Mapping
 log = logging.getLogger(__name__)
 
 
-def make_writer(log_dir: str | Path):
-    """A ``SummaryWriter`` writing event files into ``log_dir``."""
+def make_writer(log_dir: str | Path, fresh: bool = False):
+    """A ``SummaryWriter`` writing event files into ``log_dir``; ``fresh``: an earlier run's event files there are
+    removed first (a run again into the same folder drew two runs as one, two values at each step)."""
     from torch.utils.tensorboard import SummaryWriter
 
+    earlier = sorted(Path(log_dir).rglob("events.out.tfevents.*")) if fresh else []
+    for path in earlier:
+        path.unlink()
+    if earlier:
+        log.info("%s: the earlier run's TensorBoard files removed (%d)", log_dir, len(earlier))
     return SummaryWriter(log_dir=str(log_dir))
 
 

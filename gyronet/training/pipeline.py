@@ -100,6 +100,10 @@ def load_held_out(paths: Sequence[str], fs_hz: float | None = None) -> dict[str,
     malformed file, or one at another rate than the training data's ``fs_hz``, is one line at once, not after the
     fit."""
     held_out = {}
+    names = [Path(p).name.removesuffix(".gz").removesuffix(".csv") for p in paths]
+    twice = sorted({n for n in names if names.count(n) > 1})
+    if twice:  # their figures and plots are filed under the name: one would replace the other
+        raise GyronetError(f"eval.paths: two held-out recordings are named {twice[0]!r}; give each its own file name")
     for path in paths:
         recording = load_recording(path)
         if fs_hz is not None and abs(recording.fs_hz / fs_hz - 1.0) > RATE_TOLERANCE:
@@ -240,5 +244,5 @@ def _log_run(writer: Any, metrics: Mapping[str, float], evaluations: Mapping[str
         tb.log_figure(writer, f"eval/{name}/residual_vs_temperature", plots.residual_vs_temperature(arrays))
         if "error_bar" in result:  # the sigma band: is the error bar honest on this record?
             tb.log_figure(writer, f"eval/{name}/drift_sigma", plots.drift_sigma_band(arrays))
-    tb.log_hparams(writer, hparams, {k: v for k, v in metrics.items() if k.startswith("val/") and np.isfinite(v)})
+    tb.log_hparams(writer, hparams, {k: v for k, v in metrics.items() if k.startswith(("val/", "eval")) and np.isfinite(v)})
     writer.flush()
