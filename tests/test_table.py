@@ -39,6 +39,11 @@ def test_rows_score_each_bundle_against_the_truth(bundle, cycle_csv):
     table = to_markdown(rows).splitlines()
     assert table[0].startswith("| method | N x") and "residual / floor" in table[0]
     assert [line.split("|")[1].strip() for line in table[3:]] == list(rows)
+    # a B that is only a bound reads "<=", as allan.py prints it
+    cells = {line.split("|")[1].strip(): line.split("|")[5:8] for line in table[3:]}
+    for name, row in rows.items():
+        assert [c.strip().startswith("<=") for c in cells[name]] == row["bias_instability_upper_bound"]
+    assert any(b for row in rows.values() for b in row["bias_instability_upper_bound"])  # the check bites here
 
 
 def test_the_script_writes_markdown_and_json_into_its_run_folder(bundle, cycle_csv, tmp_path):

@@ -137,6 +137,8 @@ def _row(time_s: np.ndarray, rate_dps: np.ndarray, truth: Mapping[str, np.ndarra
     row: dict[str, Any] = {
         "arw_deg_rthr": [report[a]["arw_deg_rthr"] for a in AXES],
         "bias_instability_deg_hr": [report[a]["bias_instability_deg_hr"] for a in AXES],
+        # True: B is only an upper bound (the curve still falls at the last tau read), printed "<="
+        "bias_instability_upper_bound": [bool(report[a]["bias_instability_upper_bound"]) for a in AXES],
     }
     if truth is not None:
         residual = residual_report(time_s, rate_dps, truth)
@@ -149,13 +151,16 @@ def _row(time_s: np.ndarray, rate_dps: np.ndarray, truth: Mapping[str, np.ndarra
 
 
 def to_markdown(rows: Mapping[str, Mapping[str, Any]]) -> str:
-    """A Markdown table in the paper's layout, with the residual-to-noise-floor ratio when known."""
+    """A Markdown table in the paper's layout, with the residual-to-noise-floor ratio when known; a B that is only
+    an upper bound reads ``<=``."""
     has_truth = any("ratio_to_floor" in r for r in rows.values())
     head = "| method | N x | N y | N z | B x | B y | B z |" + (" residual / floor x, y, z |" if has_truth else "")
     unit = "| | deg/sqrt(h) | | | deg/h | | |" + (" |" if has_truth else "")
     lines = [head, "|" + "---|" * (head.count("|") - 1), unit]
     for name, row in rows.items():
-        cells = [f"{v:.2f}" for v in row["arw_deg_rthr"]] + [f"{v:.2f}" for v in row["bias_instability_deg_hr"]]
+        bounds = row.get("bias_instability_upper_bound", [False] * 3)
+        cells = [f"{v:.2f}" for v in row["arw_deg_rthr"]] + [
+            f"{'<=' if bound else ''}{v:.2f}" for v, bound in zip(row["bias_instability_deg_hr"], bounds)]
         if has_truth:
             cells.append(", ".join(f"{v:.2f}" for v in row["ratio_to_floor"]) if "ratio_to_floor" in row else "")
         lines.append(f"| {name} | " + " | ".join(cells) + " |")
