@@ -244,11 +244,13 @@ class LiveAllan:
         self.bins = {"used": int(len(time_s)), "filled": n_filled,
                      "measured": int(self._n if history is None else len(history[0]))}
         self.last = {axis: {"arw_deg_rthr": _finite_or_none(report[axis]["arw_deg_rthr"]),
-                            "bias_instability_deg_hr": _finite_or_none(report[axis]["bias_instability_deg_hr"])}
+                            "bias_instability_deg_hr": _finite_or_none(report[axis]["bias_instability_deg_hr"]),
+                            # True: B is only an upper bound (the curve still falls at the last tau read)
+                            "bias_instability_upper_bound": bool(report[axis]["bias_instability_upper_bound"])}
                      for axis in AXES}
         log.info("Allan at %d s of data (%d bins, %d of them filled): %s", step, len(time_s), n_filled, ", ".join(
-            f"{axis}: N={_number(v['arw_deg_rthr'])} deg/rt-h B={_number(v['bias_instability_deg_hr'])} deg/h"
-            for axis, v in self.last.items()))
+            f"{axis}: N={_number(v['arw_deg_rthr'])} deg/rt-h B={'<=' if v['bias_instability_upper_bound'] else ''}"
+            f"{_number(v['bias_instability_deg_hr'])} deg/h" for axis, v in self.last.items()))
         if self.writer is None:
             return
         try:
@@ -264,6 +266,8 @@ class LiveAllan:
             for name, tag in (("arw_deg_rthr", "arw"), ("bias_instability_deg_hr", "bias_instability")):
                 if values[name] is not None:
                     self.writer.add_scalar(f"allan/{tag}_{axis}", values[name], step)
+            self.writer.add_scalar(f"allan/bias_instability_bound_{axis}", float(values["bias_instability_upper_bound"]),
+                                   step)
         if figure:  # drawing takes a second or more: once, at the end, not between samples
             from gyronet.figures.tb import log_figure
 
