@@ -56,6 +56,17 @@ def test_refit_head_at_a_level_writes_only_the_given_axes():
         assert torch.allclose(model(x)[:, 0], y[:, 0].mean().expand(len(x)))
 
 
+def test_a_capacity_without_gaussians_says_which_settings_it_makes_inert(monkeypatch, caplog):
+    """A GA sweep over n_centers, width_init, lr and seed on a record that keeps no Gaussians searches nothing."""
+    monkeypatch.setattr(capacity, "refit", lambda *args: None)
+    with caplog.at_level("INFO", logger="gyronet.training.capacity"):
+        capacity.apply(None, None, [2, 1, 1])
+        capacity.apply(None, None, [3, 1, 1])
+    said = [r.getMessage() for r in caplog.records]
+    assert said[0].endswith(f"z=linear (no axis keeps its Gaussians: {capacity.INERT})") and "optim.lr" in said[0]
+    assert said[1].endswith("z=linear")
+
+
 def test_held_out_runs_choose_each_axis_its_capacity():
     """x: a bump each run has at its own temperature (nothing to learn); y: a shared line; z: a shared knee."""
     data = _fold(bump_train_c=0.0, bump_val_c=12.0)

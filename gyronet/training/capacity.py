@@ -102,10 +102,15 @@ def refit(model: nn.Module, data: Any, levels: Sequence[int]) -> None:
         fit_level(model, x, y, level, [a for a, v in enumerate(levels) if v == level], getattr(data, "offsets", None))
 
 
+# said where no axis keeps its Gaussians: a sweep over these searches nothing on this record
+INERT = "model.n_centers, model.width_init, optim.lr and seed change nothing here"
+
+
 def apply(model: nn.Module, data: Any, levels: Sequence[int]) -> None:
     """``refit`` the model that will be deployed, and say what each axis got."""
     refit(model, data, levels)
-    log.info("capacity per axis: %s", ", ".join(f"{a}={LEVELS[v]}" for a, v in zip(AXES, levels)))
+    log.info("capacity per axis: %s%s", ", ".join(f"{a}={LEVELS[v]}" for a, v in zip(AXES, levels)),
+             f" (no axis keeps its Gaussians: {INERT})" if max(levels) < len(LEVELS) - 1 else "")
 
 
 def as_metrics(errors: np.ndarray, levels: Sequence[int] | None = None) -> dict[str, float]:

@@ -183,8 +183,8 @@ def fit_by_run(model: nn.Module, data: RunsData, optim: Callable | None = None, 
         levels = capacity.choose(errors)
         if max(levels) < len(capacity.LEVELS) - 1:  # no axis keeps its Gaussians: the refit below replaces
             steps = [None if n is None else 1 for n in steps]  # all a trained final fit would learn
-            log.info("no axis keeps its Gaussians (%s): the final fit is least squares at those levels",
-                     "/".join(capacity.LEVELS[v] for v in levels))
+            log.info("no axis keeps its Gaussians (%s): the final fit is least squares at those levels (%s)",
+                     "/".join(capacity.LEVELS[v] for v in levels), capacity.INERT)
     parts = None
     if plain:
         final = fit(model, data, optim, seed=seed, writer=writer, stop_at_step=steps[0], **fit_kwargs)
