@@ -40,6 +40,22 @@ def test_an_earlier_emulators_stale_link_is_replaced(tmp_path):
     assert not os.path.lexists(link)
 
 
+def test_a_port_file_over_a_file_of_something_else_is_refused_and_an_earlier_ones_replaced(tmp_path):
+    victim = tmp_path / "notes.txt"
+    victim.write_text("chamber run 3: door opened at 14:02\n")
+    with pytest.raises(ConfigError, match="port_file=.*holds no pty path"):
+        PtySensor(port_file=victim)
+    assert victim.read_text().startswith("chamber run 3")
+    earlier = tmp_path / "port.txt"
+    earlier.write_text("/dev/pts/999999\n")  # an earlier emulator's
+    sensor = PtySensor(port_file=earlier)
+    try:
+        path = sensor.open()
+        assert earlier.read_text() == path + "\n"
+    finally:
+        sensor.close()
+
+
 def test_a_link_in_a_missing_folder_is_refused(tmp_path):
     with pytest.raises(ConfigError, match="does not exist"):
         PtySensor(tmp_path / "nope" / "sensor")

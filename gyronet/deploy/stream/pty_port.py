@@ -59,6 +59,8 @@ class PtySensor:
         if self.link is not None:
             check_link(self.link)
         self.port_file = Path(port_file) if port_file else None
+        if self.port_file is not None:
+            check_port_file(self.port_file)
         self.master_fd: int | None = None
         self.slave_fd: int | None = None
         self.path: str | None = None
@@ -152,6 +154,15 @@ def check_link(link: Path) -> None:
         elif os.path.lexists(path):
             raise ConfigError(f"link={link}: {path} exists and is not a symlink; the emulator would replace it and "
                               "remove it at exit: give link= a path that does not exist")
+
+
+def check_port_file(path: Path) -> None:
+    """Refuse a ``port_file`` that holds anything but an earlier emulator's pty path: it is rewritten at every (re)open."""
+    if os.path.lexists(path):
+        text = path.read_bytes()[:200] if path.is_file() else b""
+        if not (len(text) < 200 and text.decode("latin-1").strip().startswith(PTY_PREFIXES)):
+            raise ConfigError(f"port_file={path} exists and holds no pty path; the emulator would replace it: give "
+                              "port_file= a path that does not exist")
 
 
 def play(plan: StreamPlan, sensor: PtySensor, speed: float = 1.0, reader_timeout_s: float = 30.0,
