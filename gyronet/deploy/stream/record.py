@@ -6,10 +6,10 @@ what the sensor reported is written as the CSV's ``#`` metadata (``fs_hz``, ``se
 ``firmware``, ``gyro_source=raw``, ``gyro_autocalibration``, ``lpbus``). Rows are the decoded
 frames (CONTRACT.md section 1), each value as the shortest text that reads back to the same
 number, one ``os.write`` per line, so a kill leaves whole lines. A sensor clock that restarts (a
-replug) keeps ``time_s`` increasing: the new segment starts as long after the last sample as the host's
-clock says passed between them (a 20-minute unplug is a 20-minute break, not a 1 s jump), and at
-least one interval plus ``restart_gap_s`` after it, a break in the record. A sensor that comes back after the port was lost is
-set up again (or its first frames checked again) before its rows are written, and refused if it is
+replug) keeps ``time_s`` increasing: the new segment starts as long after the last sample as the
+host's clock says passed between them (a 20-minute unplug is a 20-minute break, not a 1 s jump),
+and at least one interval plus ``restart_gap_s`` after it, a break in the record. A sensor that
+comes back after the port was lost is set up again (or its first frames checked again) before its rows are written, and refused if it is
 not the one set up at the start.
 """
 from __future__ import annotations
@@ -54,7 +54,8 @@ def record_stream(port: str, output: str | Path, baud: int = 921600, lpbus: LpBu
     Raises
     ------
     ConfigError, OutputError
-        Before the port opens: a limit that is not positive (:func:`.limits.check_run_limits`); ``output`` exists (without ``overwrite``) or is ``summary_path``.
+        Before the port opens: a limit that is not positive (:func:`.limits.check_run_limits`);
+        ``output`` exists (without ``overwrite``) or is ``summary_path``.
     PortError, SensorError, ConfigError
         Before any row: a port that cannot be opened, a sensor that does not answer or cannot be
         set up, a layout without gyro and temperature.
