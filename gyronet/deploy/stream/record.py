@@ -9,8 +9,8 @@ number, one ``os.write`` per line, so a kill leaves whole lines. A sensor clock 
 replug) keeps ``time_s`` increasing: the new segment starts as long after the last sample as the
 host's clock says passed between them (a 20-minute unplug is a 20-minute break, not a 1 s jump),
 and at least one interval plus ``restart_gap_s`` after it, a break in the record. A sensor that
-comes back after the port was lost is set up again (or its first frames checked again) before its rows are written, and refused if it is
-not the one set up at the start.
+comes back after the port was lost is set up again (or its first frames checked again) before its
+rows are written, and refused if it is not the one set up at the start.
 """
 from __future__ import annotations
 
