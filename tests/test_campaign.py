@@ -97,6 +97,34 @@ def test_a_run_without_a_cold_dwell_long_enough_for_its_floor_is_one_line():
     assert "\n" not in str(err.value)
 
 
+def test_runs_are_checked_as_train_py_checks_them_before_any_fold(paper_csv, cycle_csv, tmp_path):
+    """Two runs named run.csv lost one from the table and scored the other in sample; a copy scored in sample; a
+    glitch row gave no cold dwell; a short run gave NaN cells."""
+    from gyronet.recordings.data import load_recording, write_recording
+
+    for folder, source in (("a", paper_csv), ("b", cycle_csv)):
+        (tmp_path / folder).mkdir()
+        (tmp_path / folder / "run.csv").write_bytes(source.read_bytes())
+    table = held_out_table([tmp_path / "a" / "run.csv", tmp_path / "b" / "run.csv"], {"raw": None},
+                           startup_s=60, score_from_s=60)
+    assert list(table["runs"]) == ["run", "run_1"] and all(len(r["ratio"]) == 2 for r in table["rows"].values())
+    copy = tmp_path / "copy.csv"
+    copy.write_bytes(paper_csv.read_bytes())
+    with pytest.raises(GyronetError, match="holds the same samples"):
+        held_out_table([paper_csv, copy], {"raw": None})
+    cycle = load_recording(cycle_csv)
+    columns = dict(cycle.columns)
+    columns["temp_c"] = columns["temp_c"].copy()
+    columns["temp_c"][len(columns["temp_c"]) // 2] = -150.0  # one glitch: far below the cold dwell
+    write_recording(tmp_path / "glitch.csv", columns, cycle.meta)
+    table = held_out_table([paper_csv, tmp_path / "glitch.csv"], {"raw": None}, startup_s=60, score_from_s=60)
+    assert np.all(np.isfinite(table["floor_dps"]["glitch"]))
+    short = {k: v[:200] for k, v in cycle.columns.items()}  # 100 s at 2 Hz
+    write_recording(tmp_path / "short.csv", short, cycle.meta)
+    with pytest.raises(GyronetError, match="short.csv: 100 s long"):
+        held_out_table([paper_csv, tmp_path / "short.csv"], {"raw": None}, startup_s=60, score_from_s=60)
+
+
 def test_the_command_takes_data_paths_as_train_py_does_and_runs_still(paper_csv, cycle_csv, tmp_path):
     """campaign_table.py refused data.paths, the contract's spelling, as an unknown setting."""
     import json

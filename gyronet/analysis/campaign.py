@@ -22,9 +22,9 @@ from gyronet.allan import oadev
 from gyronet.bundle.compensator import Compensator
 from gyronet.errors import GyronetError
 from gyronet.recordings.data import AXES, Recording, block_means, time_blocks
-from gyronet.training.dataset import load_cached
 from gyronet.model.features import PAPER_FEATURES
-from gyronet.training.runs import fit_by_run, run_name, training_data
+from gyronet.training.run_data import check_long_enough, load_runs
+from gyronet.training.runs import fit_by_run, training_data
 
 log = logging.getLogger(__name__)
 
@@ -111,6 +111,14 @@ def _train(make_model: Callable[[int], torch.nn.Module], paths: Sequence[str], r
     return Compensator(model.eval(), _meta(model, data))
 
 
+def _accepted(run: Any) -> Recording:
+    """The run's recording without the rows the guard left out (a glitch is no cold dwell)."""
+    if run.accepted is None:
+        return run.recording
+    return Recording({k: v[run.accepted] for k, v in run.recording.columns.items()}, run.recording.meta,
+                     run.recording.path)
+
+
 def held_out_table(paths: Sequence[str], models: Mapping[str, Callable[[int], torch.nn.Module] | None],
                    startup_s: float = 600.0, score_from_s: float = 600.0, run_offsets: bool = True,
                    train_cfg: Mapping[str, Any] | None = None, seed: int = 0,
@@ -130,16 +138,19 @@ def held_out_table(paths: Sequence[str], models: Mapping[str, Callable[[int], to
     """
     train_cfg = {"progress": False, **dict(train_cfg or {})}
     score_from_s = max(score_from_s, startup_s)
-    names = [run_name(p) for p in paths]
-    recordings = {n: load_cached(str(p)) for n, p in zip(names, paths)}
-    floors = {n: floor_dps(r) for n, r in recordings.items()}
+    # train.py's checks on the runs, before any training: a run named twice or copied (a fold scored in sample),
+    # mixed rates, a run too short to score after its window, a glitch row left out
+    runs = load_runs([str(p) for p in paths], PAPER_FEATURES)
+    check_long_enough(runs, score_from_s, BLOCK_S)
+    names = [r.name for r in runs]  # unique: two runs named run.csv in two folders are run and run_1
+    recordings = {r.name: r.recording for r in runs}
+    floors = {r.name: floor_dps(_accepted(r)) for r in runs}
     touched = {n: touched_blocks(r) for n, r in recordings.items()}
     rows: dict[str, dict[str, Any]] = {}
     for k, held in enumerate(names):
         recording = recordings[held]
         others = [p for j, p in enumerate(paths) if j != k]
-        box_c = (min(recordings[n].temp_c.min() for n in names if n != held),
-                 max(recordings[n].temp_c.max() for n in names if n != held))
+        box_c = (min(r.temp_c.min() for r in runs if r.name != held), max(r.temp_c.max() for r in runs if r.name != held))
         for model_name, make_model in models.items():
             options = dict((data_options or {}).get(model_name) or {})
             offsets_allowed = options.pop("run_offsets", True) and make_model is not None
