@@ -133,3 +133,17 @@ def test_the_default_bundle_holds_its_edge_value_at_a_steady_temperature(bundle)
         out = compensator.model(steady)
     torch.testing.assert_close(out[0], out[1], rtol=0, atol=1e-12)
     torch.testing.assert_close(out[2], out[3], rtol=0, atol=1e-12)
+
+
+def test_a_missing_input_column_is_named_by_process_and_process_row(bundle):
+    """The API gave a bare KeyError; compensate.py's check_columns already named the columns."""
+    from gyronet.errors import BundleError
+
+    compensator = Compensator.load(bundle)
+    columns = {"time_s": np.arange(3.0), "temp_c": np.full(3, 20.0), "gyro_x_dps": np.zeros(3),
+               "gyro_y_dps": np.zeros(3)}
+    with pytest.raises(BundleError, match="missing column.*gyro_z_dps that the compensator needs"):
+        compensator.process(columns)
+    assert compensator.use_small_chunks()
+    with pytest.raises(BundleError, match="missing column.*gyro_z_dps"):
+        compensator.process_row(0.0, {"temp_c": 20.0, "gyro_x_dps": 0.0, "gyro_y_dps": 0.0})

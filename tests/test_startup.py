@@ -218,3 +218,15 @@ def test_the_output_names_the_true_rate_left_in_it(bundle, biased_csv, tmp_path)
         head = (tmp_path / f"{name}.csv").read_text()[:400]
         lines[name] = [line for line in head.splitlines() if line.startswith("# static_rate_dps=")]
     assert lines["plain"] and not lines["offset"] and lines["told"] == ["# static_rate_dps=0.0,0.01,0.0"]
+
+
+@pytest.mark.parametrize("options, message", [
+    ({"still_s": 600, "static_rate_dps": [0, 0.003]}, r"static_rate_dps needs 3 numbers \(x, y, z, deg/s\), got \[0, 0.003\]"),
+    ({"still_s": 600, "static_rate_dps": 0.003}, "static_rate_dps needs 3 numbers"),
+    ({"still_s": "10min"}, "startup.still_s must be a number, got '10min'"),
+    ({"still_s": 600, "motion_dps": None}, "startup.motion_dps must be a number, got None"),
+])
+def test_a_bad_startup_option_is_one_line(bundle, options, message):
+    """compensate.py and stream.py pass these straight through: each was a ValueError or TypeError traceback."""
+    with pytest.raises(GyronetError, match=message):
+        Compensator.load(bundle).use_startup(**options)

@@ -156,8 +156,8 @@ class Compensator:
         """Estimate the run's offset over the first ``still_s`` s and apply it from then on (0: off)."""
         from gyronet.bundle.startup import StartupOffset
 
-        if static_rate_dps is None or not len(static_rate_dps):  # (a list or an array: no truth test)
-            static_rate_dps = (0.0, 0.0, 0.0)
+        if static_rate_dps is None or (hasattr(static_rate_dps, "__len__") and not len(static_rate_dps)):
+            static_rate_dps = (0.0, 0.0, 0.0)  # (a list or an array: no truth test)
         self.startup = StartupOffset(still_s, motion_dps, static_rate_dps) if still_s else None
         calibrated_s = 0.0 if self.error_bar is None else self.error_bar.startup_s
         # a bar calibrated on held-out runs with their start-up offsets has the offset's noise in its floor
@@ -204,6 +204,7 @@ class Compensator:
         out of the start-up window and the Kalman state (``gyronet.recordings.skipping``): every other row is
         what the recording without the flagged rows gives.
         """
+        self.check_columns(columns, str(self.rate_source))  # one line naming them, not a bare KeyError
         features = self.extractor.process(columns)
         drift_dps = self._drift_of(features)
         sigma_dps = self.drift_sigma(features)
@@ -237,10 +238,14 @@ class Compensator:
         out of range): ``process`` it then."""
         if self._row_model is None or (self.startup is not None and not self.startup.done):
             return None
-        gyro_dps = [values[c] for c in GYRO_COLUMNS]
-        if not all(abs(v) <= GYRO_RANGE_DPS for v in gyro_dps):  # NaN compares False
-            return None
-        features, rejected = self.extractor.process_row(time_s, values)
+        try:
+            gyro_dps = [values[c] for c in GYRO_COLUMNS]
+            if not all(abs(v) <= GYRO_RANGE_DPS for v in gyro_dps):  # NaN compares False
+                return None
+            features, rejected = self.extractor.process_row(time_s, values)
+        except KeyError:  # one line naming every missing input, not a bare KeyError
+            self.check_columns({"time_s": time_s, **values}, str(self.rate_source))
+            raise
         drift_dps = self._row_model(features)
         sigma_dps = [math.nan] * 3 if self.error_bar is None else self.error_bar.sigma_row(features)
         rate_dps = [g - d for g, d in zip(gyro_dps, drift_dps)]

@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import logging
 import math
-from typing import Sequence
+from typing import Any, Sequence
 
 import numpy as np
 
@@ -39,6 +39,14 @@ N_SIGMA = 6.0
 
 class StartupMotionError(GyronetError):
     """The start-up window that should be still is not."""
+
+
+def _number(value: Any, name: str) -> float:
+    """``value`` as a float, or one line naming the setting (``startup.still_s=10min`` was a TypeError)."""
+    try:
+        return float(value)
+    except (TypeError, ValueError):
+        raise GyronetError(f"startup.{name} must be a number, got {value!r}") from None
 
 
 class StartupOffset:
@@ -55,12 +63,17 @@ class StartupOffset:
     """
 
     def __init__(self, still_s: float, motion_dps: float = 0.5, static_rate_dps: Sequence[float] = (0.0, 0.0, 0.0)):
+        still_s, motion_dps = _number(still_s, "still_s"), _number(motion_dps, "motion_dps")
         if not (math.isfinite(still_s) and still_s > 0):
             raise GyronetError(f"startup.still_s must be a positive number of seconds, got {still_s}")
         if not (math.isfinite(motion_dps) and motion_dps > 0):
             raise GyronetError(f"startup.motion_dps must be positive, got {motion_dps}")
-        self.still_s, self.motion_dps = float(still_s), float(motion_dps)
-        self.static_rate_dps = np.asarray(static_rate_dps, dtype=np.float64).reshape(3)
+        self.still_s, self.motion_dps = still_s, motion_dps
+        try:
+            self.static_rate_dps = np.asarray(static_rate_dps, dtype=np.float64).reshape(3)
+        except (TypeError, ValueError):
+            raise GyronetError(f"startup.static_rate_dps needs 3 numbers (x, y, z, deg/s), got {static_rate_dps!r}") \
+                from None
         self.n_bins = max(1, int(math.ceil(self.still_s / BIN_S)))
         self.reset()
 
