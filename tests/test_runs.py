@@ -96,6 +96,13 @@ def test_rate_tau_s_must_be_positive(paper_csv, tau_s):
         training_data(path=str(paper_csv), rate_tau_s=tau_s)
 
 
+@pytest.mark.parametrize("startup_s", [-100.0, float("nan"), float("inf")])
+def test_val_startup_s_must_be_a_window(paper_csv, startup_s):
+    """-100 was taken as 0 but written to the bundle as -100, so use_startup never widened the bar for the offset."""
+    with pytest.raises(GyronetError, match=r"data.val_startup_s must be >= 0 s .*got"):
+        training_data(path=str(paper_csv), val_startup_s=startup_s)
+
+
 def test_training_data_one_or_several_and_clear_errors(paper_csv, cycle_csv):
     assert type(training_data(path=str(paper_csv))).__name__ == "DriftData"
     assert type(training_data(paths=[str(paper_csv)])).__name__ == "DriftData"

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import hashlib
 import logging
+import math
 from typing import Any, Callable, Sequence
 
 import numpy as np
@@ -117,6 +118,10 @@ def training_data(path: str | None = None, paths: Sequence[str] | None = None, r
     """
     if rate_tau_s is not None and not rate_tau_s > 0:  # 0 divides by zero, a negative one diverges the fit
         raise ConfigError(f"data.rate_tau_s must be > 0 s (the dT/dt tracker's time constant), got {rate_tau_s}")
+    if val_startup_s is not None and not (val_startup_s >= 0 and math.isfinite(val_startup_s)):
+        # a negative one was taken as 0 but written to the bundle, which then never widened the bar for the offset
+        raise ConfigError(f"data.val_startup_s must be >= 0 s (the start-up window held-out runs are scored after; "
+                          f"0: none), got {val_startup_s}")
     if path is not None and paths:
         raise GyronetError("give data.path=F.csv (one recording) or data.paths=[A.csv,B.csv] (several runs), not both")
     if path is None and not paths:
