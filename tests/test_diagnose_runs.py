@@ -246,10 +246,11 @@ def test_a_campaign_report_shows_its_figures(tmp_path):
         paths.append(str(tmp_path / f"run{i}.csv"))
         write_simulation(sim, paths[-1])
     model = lambda n: RBFNet(n, 3, 6, rbf_inputs=[0], linear=True, temp_degree=3, clamp=True)  # noqa: E731
-    diagnose({"paths": paths, "rate_tau_s": 5.0}, model, tmp_path / "out",
+    diagnose({"paths": paths, "rate_tau_s": 2.5}, model, tmp_path / "out",
              train_cfg={"progress": False, "max_epochs": 60}, options={"n_shifts": 19, "max_effects": 1})
     report = (tmp_path / "out" / "report.md").read_text()
     assert "## Figures" in report
+    assert "in the dT/dt tracker's 2.5 s" in report  # the model's tracker, not the advice's 5 s default
     for name in ("residual_by_run.png", "residual_vs_temperature.png"):
         assert f"![{name}]({name})" in report
         assert (tmp_path / "out" / name).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

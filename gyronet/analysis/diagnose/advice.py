@@ -41,6 +41,11 @@ def _direction(time_s: np.ndarray, temp_c: np.ndarray, block_s: float = 300.0, m
     return float(np.mean(steps[moving] > 0)) if moving.any() else 0.5
 
 
+def rate_tau_of(features: Sequence[dict]) -> float:
+    """The dT/dt tracker's time constant, s, of a stage's features (5 s where none says)."""
+    return next((float(f.get("tau_s", 5.0)) for f in features if f["kind"] == "rate"), 5.0)
+
+
 def record_advice(time_s: np.ndarray, temp_c: np.ndarray, fs_hz: float, columns: Sequence[str],
                   rate_tau_s: float = 5.0, still_s: float = 600.0, min_span_c: float = 30.0,
                   range_c: tuple[float, float] | None = None) -> list[Advice]:

@@ -208,11 +208,12 @@ def write_report(out_dir: Path, diagnosis: Mapping[str, Any], details: Mapping[s
                      "there the network is clamped and any candidate that extrapolates would win for the wrong "
                      "reason, and so do the networks' held-out numbers above.")
     lines.append("")
-    from gyronet.analysis.diagnose.advice import advice_lines, alternatives_advice, record_advice, runs_advice
+    from gyronet.analysis.diagnose.advice import (advice_lines, alternatives_advice, rate_tau_of, record_advice,
+                                                  runs_advice)
     from gyronet.analysis.diagnose.candidates import source_columns
 
-    rate_tau_s = next((float(f.get("tau_s", 5.0)) for f in stages[0].data.features if f["kind"] == "rate"), 5.0)
-    advice = record_advice(training.time_s, training.temp_c, training.fs_hz, source_columns(training), rate_tau_s)
+    advice = record_advice(training.time_s, training.temp_c, training.fs_hz, source_columns(training),
+                           rate_tau_of(stages[0].data.features))
     advice += alternatives_advice(diagnosis["effects"]) + ([] if record else runs_advice([None]))
     if plots:
         figures = write_figures(out_dir, rows, stages, record)

@@ -32,7 +32,7 @@ import torch
 from gyronet.atomic import write_json
 from gyronet.recordings.data import AXES
 from gyronet.analysis.diagnose.options import DiagnoseOptions
-from gyronet.analysis.diagnose.advice import orientation_label, record_advice, runs_advice
+from gyronet.analysis.diagnose.advice import orientation_label, rate_tau_of, record_advice, runs_advice
 from gyronet.analysis.diagnose.candidates import candidate_specs, describe, effect_kind, effect_params, effect_source
 from gyronet.analysis.diagnose.candidates import source_columns
 from gyronet.analysis.diagnose.choose import approximations, complexity, ranked
@@ -244,8 +244,9 @@ def diagnose_runs(paths: Sequence[str], data_options: Mapping[str, Any], make_mo
     orientations = _orientations(recordings)
     advice = runs_advice(orientations)
     union_c = (min(float(r.temp_c.min()) for r in recordings), max(float(r.temp_c.max()) for r in recordings))
-    per_run = [{(a.cost, a.record): a for a in record_advice(r.time_s, r.temp_c, r.fs_hz, common, range_c=union_c)}
-               for r in recordings]
+    rate_tau_s = rate_tau_of(stage.data.features)  # the tracker the model uses (2.5 s by default), not 5 s
+    per_run = [{(a.cost, a.record): a for a in record_advice(r.time_s, r.temp_c, r.fs_hz, common, rate_tau_s,
+                                                             range_c=union_c)} for r in recordings]
     advice += [a for key, a in per_run[0].items() if all(key in other for other in per_run[1:])]
     details = {"options": asdict(options), "runs": [{"name": r.name, "orientation": o} for r, o in
                                                     zip(stage.data.runs, orientations)],
