@@ -300,6 +300,19 @@ def test_a_separate_recording_can_be_the_held_out_data(tmp_path, short_aux):
     assert "a separate recording" in first["evidence"]
 
 
+def test_a_column_the_validation_record_lacks_is_named_as_untried(tmp_path, short_aux):
+    """Only a log line said so; the report said the declared inputs explain the drift."""
+    other = simulate("cycle", fs_hz=FAST_FS_HZ, seed=5, sensor_seed=1,
+                     profile_options={"setpoints_c": [25.0, 40.0, -10.0, 25.0], "dwell_s": 1200.0})  # no vdd_v
+    val_path = _write(tmp_path / "other.csv", other)
+    diagnose({"path": str(short_aux), "val_path": str(val_path), "rate_tau_s": 5.0}, _default_model(),
+             tmp_path / "out", train_cfg={"progress": False, "max_epochs": 100},
+             options={"n_shifts": 19, "max_effects": 0}, plots=False)
+    report = (tmp_path / "out" / "report.md").read_text()
+    assert "`vdd_v` is in the training record but missing or constant in `data.val_path`" in report
+    assert json.loads((tmp_path / "out" / "diagnosis_details.json").read_text())["untried_columns"] == ["vdd_v"]
+
+
 def test_the_script_writes_the_contract_files(tmp_path, short_aux):
     cmd = [sys.executable, "scripts/diagnose.py", f"data.path={short_aux}", f"hydra.run.dir={tmp_path}",
            "train.max_epochs=300", "diagnose.n_shifts=99", "diagnose.max_effects=1", "diagnose.refine_top=1",

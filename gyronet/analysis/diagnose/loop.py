@@ -134,7 +134,7 @@ def diagnose(data_options: Mapping[str, Any], make_model: Callable[[int], torch.
         log.warning("n_shifts=%d cannot give a p-value below alpha=%g: nothing can pass",
                     options.n_shifts, options.alpha)
     # loaded once per process: the networks' DriftData reuse it
-    recordings, columns = [load_cached(data_options["path"])], None
+    recordings, columns, untried = [load_cached(data_options["path"])], None, []
     span_s = float(recordings[0].time_s[-1] - recordings[0].time_s[0])
     n_spans = max(2 * options.n_folds, int(round(span_s / options.span_s)))
     # the networks are validated on the screen's folds (not data.n_blocks): interleaved spans of
@@ -149,10 +149,10 @@ def diagnose(data_options: Mapping[str, Any], make_model: Callable[[int], torch.
         recordings.append(load_cached(data_options["val_path"]))
         in_both = set(source_columns(recordings[1]))
         columns = [c for c in source_columns(recordings[0]) if c in in_both]
-        dropped = [c for c in source_columns(recordings[0]) if c not in in_both]
-        if dropped:
+        untried = [c for c in source_columns(recordings[0]) if c not in in_both]
+        if untried:
             log.warning("%s lacks (or holds constant) column(s) %s of the training record: no candidate reads them",
-                        data_options["val_path"], ", ".join(dropped))
+                        data_options["val_path"], ", ".join(untried))
     longest_s = options.candidates.max_tau_fraction * span_s
     rows = ScreenRows.build(recordings, stage.data.fs_hz, options.block_s, n_spans, options.n_folds,
                             data_options.get("static_rate_dps"))
@@ -223,6 +223,7 @@ def diagnose(data_options: Mapping[str, Any], make_model: Callable[[int], torch.
     out_dir.mkdir(parents=True, exist_ok=True)
     write_json(out_dir / "diagnosis.json", diagnosis)
     details = {"options": asdict(options), "n_blocks": len(rows), "n_blocks_outside": n_all - len(rows),
+               "untried_columns": untried,  # in the training record, not (or constant) in data.val_path
                "rounds": rounds, "stages": [{"inputs": s.data.feature_names, "features": s.data.features,
                                              "metrics": s.metrics, "held_out_dps": s.held_out}
                                             for s in stages]}

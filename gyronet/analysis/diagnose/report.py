@@ -151,7 +151,8 @@ def write_report(out_dir: Path, diagnosis: Mapping[str, Any], details: Mapping[s
         lines += ["**No effect found.** No candidate lowered the held-out residual by more than chance and "
                   "the multiple comparisons allow and held on confirmation: as far as this record can tell, the "
                   "declared inputs explain the drift"
-                  + (", but not the columns the loader dropped (below)" if training.dropped else "")
+                  + (", but not the columns left untried (below)" if training.dropped or details.get("untried_columns")
+                     else "")
                   + ". The final bundle is the baseline.", ""]
     close = rivals(details["rounds"][-1]["candidates"]) if details["rounds"] else []
     if close:
@@ -202,6 +203,8 @@ def write_report(out_dir: Path, diagnosis: Mapping[str, Any], details: Mapping[s
                                                  n_shifts)]
     lines += [f"- `{name}` was logged but the loader dropped it ({why}): nothing of it was tried. Fill or cut those "
               "rows and diagnose again." for name, why in training.dropped.items()]
+    lines += [f"- `{name}` is in the training record but missing or constant in `data.val_path`: nothing of it was "
+              "tried. Give a validation record that logs it." for name in details.get("untried_columns", [])]
     if details.get("n_blocks_outside"):
         lines.append(f"- {details['n_blocks_outside']} blocks lie outside the temperature range the networks were "
                      "trained on (the held-out time blocks reach beyond it): the screen leaves them out, since "
