@@ -338,7 +338,7 @@ def test_a_column_the_loader_dropped_is_named_and_no_effect_is_not_claimed_for_i
     _diagnose(gappy, tmp_path / "run", train_cfg={"max_epochs": 300}, n_shifts=99, max_effects=1, refine_top=1,
               refine_passes=0)
     report = (tmp_path / "run" / "report.md").read_text()
-    assert "but not the columns the loader dropped" in report
+    assert "but not the columns left untried" in report
     assert "`vdd_v` was logged but the loader dropped it (line " in report and "71 such cell(s)" in report
 
 
