@@ -175,7 +175,7 @@ def test_compensate_script_takes_startup_and_refuses_motion_in_one_line(bundle, 
     proc = _compensate(bundle, moved_csv, out, "startup.still_s=300")
     assert proc.returncode == 2
     lines = proc.stderr.strip().splitlines()
-    assert len(lines) == 1 and "motion in the start-up window" in lines[0], proc.stderr
+    assert len(lines) == 1 and f"{moved_csv}: motion in the start-up window" in lines[0], proc.stderr
 
 
 def test_live_stream_with_startup_equals_offline(bundle, biased_csv, tmp_path):

@@ -8,6 +8,7 @@ from typing import Any, Mapping
 import numpy as np
 
 from gyronet.bundle.compensator import Compensated, Compensator
+from gyronet.bundle.startup import StartupMotionError
 from gyronet.recordings.data import AXES, GYRO_COLUMNS, Recording, load_recording, write_recording
 from gyronet.atomic import atomic_output, refuse_overwriting
 from gyronet.recordings.fastcsv import write_csv
@@ -119,7 +120,10 @@ def compensate_file(bundle_dir: str | Path, input_path: str | Path, output_path:
     compensator.use_startup(**dict(startup or {}))
     log_what_it_rests_on(compensator)
     recording = load_recording(input_path)
-    out = compensate_as_deployed(compensator, recording, resample)
+    try:
+        out = compensate_as_deployed(compensator, recording, resample)
+    except StartupMotionError as err:  # the line names the file, as every refusal of one does
+        raise StartupMotionError(f"{input_path}: {err}") from None
     still_s = 0.0 if compensator.startup is None else compensator.startup.still_s
     # the true rate left in the output: the input's, unless a start-up offset took the window's rate for its own
     # (it removes everything but its static_rate_dps, 0 unless given)
