@@ -158,23 +158,19 @@ class ChunkWriter:
         """A few frames (a lone one, a short backlog) in plain floats (``Compensator.process_row``), written in one
         go; returns how many: it stops at the first where that does not apply (the rest go as arrays)."""
         rows = []
-        window = []  # the rows in the start-up window: no offset yet, so no Allan figure (as allan.py reads)
-        for sample in samples:
-            in_window = self._in_window(sample.time_s)
+        for sample in samples:  # never in an open start-up window: process_row leaves those to process
             row = self.compensator.process_row(sample.time_s, sample.values)
             if row is None:
                 break
             temp_c = sample.values["temp_c"]
-            window.append(in_window)
             rows.append((sample.time_s, row.rate_dps, temp_c, row.out_of_range, row.bad_input, row.drift_sigma_dps))
             if row.out_of_range:
                 self._out_of_range([temp_c], [sample.time_s])
         if rows:
             self.out.write_rows(rows)
             if self.allan is not None:
-                for (time_s, rate_dps, *_), in_window in zip(rows, window):
-                    if not in_window:
-                        self.allan.add(time_s, rate_dps)
+                for time_s, rate_dps, *_ in rows:
+                    self.allan.add(time_s, rate_dps)
             if self.recalibration is not None:
                 for time_s, rate_dps, _, out_of_range, _, sigma_dps in rows:
                     self.recalibration.add(time_s, rate_dps, sigma_dps, out_of_range)
@@ -187,12 +183,6 @@ class ChunkWriter:
             return 0
         start_s = startup.start_time_s if startup.start_time_s is not None else time_s[0]
         return int(np.count_nonzero(time_s - start_s < startup.still_s))
-
-    def _in_window(self, time_s: float) -> bool:
-        """Whether a sample at ``time_s`` falls in a start-up window still open (``_startup_end`` for one sample)."""
-        startup = self.compensator.startup
-        return startup is not None and not startup.done and (
-            startup.start_time_s is None or time_s - startup.start_time_s < startup.still_s)
 
     def _compensate(self, columns: dict[str, np.ndarray]) -> None:
         in_window = self._startup_end(columns["time_s"])  # before process, which may close the window
