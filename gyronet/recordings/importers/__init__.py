@@ -25,7 +25,7 @@ from typing import Callable, Mapping
 
 from gyronet.recordings.data import Recording, write_recording
 from gyronet.errors import GyronetError, RecordingError
-from gyronet.recordings.csvtable import other_tool, sniff
+from gyronet.recordings.csvtable import other_tool, sniff, split_header
 from gyronet.recordings.importers._common import read_header_line, read_text
 from gyronet.recordings.importers.contract import import_contract
 from gyronet.recordings.importers.lpms import import_lpms
@@ -67,7 +67,7 @@ def detect_format(path: str | os.PathLike) -> str:
     text = read_text(path)
     _, header = read_header_line(path, text)
     delimiter, _ = sniff(text)
-    names = [n.strip().strip('"') for n in header.split(delimiter)]  # a quoted header, as the loader reads it
+    names = split_header(header, delimiter)  # a quoted header, as the loader reads it
     tool = other_tool(names)
     if tool is not None:
         return tool

@@ -48,7 +48,7 @@ import numpy as np
 
 from gyronet.recordings.data import GAP_FACTOR, GYRO_COLUMNS, REQUIRED_COLUMNS, Recording
 from gyronet.errors import RecordingError
-from gyronet.recordings.csvtable.text import sniff
+from gyronet.recordings.csvtable.text import sniff, split_header
 from gyronet.recordings.importers._common import (STANDARD_GRAVITY_M_S2, fahrenheit_to_c, finish, read_header_line,
                                        read_numeric_table, read_text, snake)
 
@@ -93,7 +93,7 @@ def import_lpms(path: str | os.PathLike, sensor_id: int | None = None, gyro_unit
     path = Path(path)
     header_line, header = read_header_line(path)
     delimiter, decimal = sniff(read_text(path))  # a log re-saved by a spreadsheet: ';' and a decimal comma
-    names = [n.strip().strip('"') for n in header.split(delimiter)]
+    names = split_header(header, delimiter)
     while names and not names[-1]:
         names.pop()
     plan = [_plan(path, name, gyro_unit) for name in names]
