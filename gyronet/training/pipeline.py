@@ -19,6 +19,7 @@ from gyronet.errors import GyronetError
 from gyronet.recordings.data import AXES, Recording, load_recording, load_truth, truth_path
 from gyronet.training import coverage
 from gyronet.training.dataset import DriftData, block_rmse, static_rate_dps
+from gyronet.training.run_data import run_name
 from gyronet.training.train import evaluate, fit
 
 log = logging.getLogger(__name__)
@@ -100,7 +101,7 @@ def load_held_out(paths: Sequence[str], fs_hz: float | None = None) -> dict[str,
     malformed file, or one at another rate than the training data's ``fs_hz``, is one line at once, not after the
     fit."""
     held_out = {}
-    names = [Path(p).name.removesuffix(".gz").removesuffix(".csv") for p in paths]
+    names = [run_name(str(p)) for p in paths]
     twice = sorted({n for n in names if names.count(n) > 1})
     if twice:  # their figures and plots are filed under the name: one would replace the other
         raise GyronetError(f"eval.paths: two held-out recordings are named {twice[0]!r}; give each its own file name")
