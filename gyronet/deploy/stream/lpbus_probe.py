@@ -21,9 +21,9 @@ What passes nonetheless: a misread whose gyro, read in the accelerometer's place
 about 1 deg/s (an IG1 read as legacy; its 500 Hz clock read at 400 Hz still fails the live rate
 check unless ``resample=true``), a clock misread whose rate is another LPMS rate (an IG1 at 250
 Hz read at 400 Hz ticks shows 200 Hz), and the field order of a layout without acceleration or
-quaternion: that the check could not be made is logged. A legacy stream at 400 Hz by 400 Hz ticks may be
-one at 800 Hz (whose counter ticks at 800 Hz): that is logged too, naming ``lpbus.timestamp_hz``. Configure the sensor
-(``lpbus.configure=true``) to be sure.
+quaternion: that the check could not be made is logged. A legacy stream at 400 Hz by 400 Hz
+ticks may be one at 800 Hz (whose counter ticks at 800 Hz): that is logged too, naming
+``lpbus.timestamp_hz``. Configure the sensor (``lpbus.configure=true``) to be sure.
 """
 from __future__ import annotations
 
