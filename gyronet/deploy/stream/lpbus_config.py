@@ -12,8 +12,8 @@ and their sources are in :mod:`.lpbus_legacy` and :mod:`.lpbus_ig1`):
    IG1 65);
 4. every wanted setting checked (a rate the sensor has, a precision it takes) before any is sent,
    so a refusal leaves the sensor as it was found; then, where they differ from what is asked,
-   the sets (legacy 10, 11, 75, 23; IG1 30, 34, 136, 64), each acknowledged, then the registers read again: what the sensor reports, not what was asked,
-   makes the layout;
+   the sets (legacy 10, 11, 75, 23; IG1 30, 34, 136, 64), each acknowledged, then the registers
+   read again: what the sensor reports, not what was asked, makes the layout;
 5. optionally ``WRITE_REGISTERS`` (legacy 15, IG1 4) to keep it over a power cycle; stream mode (7).
 
 Gyro auto-calibration is switched off unless asked to stay: the sensor re-zeroes its gyro when
