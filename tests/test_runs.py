@@ -403,3 +403,17 @@ def test_a_campaign_whose_span_is_a_glitch_s_is_refused(tmp_path):
         write_recording(paths[-1], columns)
     with pytest.raises(GyronetError, match=r"accepted temperatures span 0.6 degC together"):
         load_runs([str(p) for p in paths], PAPER_FEATURES)
+
+
+def test_final_fit_record_does_not_depend_on_the_order_of_the_runs(paper_csv, cycle_csv, tmp_path):
+    """Two runs of one length: the Kalman stage's record was whichever data.paths listed first."""
+    rows = min(len(load_recording(p).time_s) for p in (paper_csv, cycle_csv))
+    paths = []
+    for source in (paper_csv, cycle_csv):
+        lines = source.read_text().splitlines(keepends=True)
+        header = sum(line.startswith("#") for line in lines) + 1
+        paths.append(tmp_path / source.name)
+        paths[-1].write_text("".join(lines[:header + rows]))
+    chosen = {RunsData(load_runs([str(p) for p in order], PAPER_FEATURES), list(PAPER_FEATURES)).recording.path
+              for order in (paths, paths[::-1])}
+    assert len(chosen) == 1

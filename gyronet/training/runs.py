@@ -63,7 +63,9 @@ class RunsData(TrainingData):
         self.path = self.paths[0]
         self.fs_hz = self.runs[0].recording.fs_hz
         self.train = stack_runs(self.train_runs, self.block_s)
-        val_run = self.runs[held_out] if held_out is not None else max(self.train_runs, key=lambda r: len(r.time_s))
+        # the longest run, ties broken by path so that the order of data.paths does not choose the Kalman stage's record
+        val_run = (self.runs[held_out] if held_out is not None
+                   else max(self.train_runs, key=lambda r: (len(r.time_s), str(r.path))))
         self.recording = (val_run if held_out is None else self.train_runs[0]).recording  # the Kalman stage's record
         self.val = val_run.blocks(self.block_s)
         self.val_full = (val_run.time_s, val_run.features, val_run.targets)
