@@ -4,12 +4,14 @@ column comes first, and a derived effect says which measured column it approxima
 Fast tests on synthetic block arrays (the screen, the tie groups, the span clustering); the slow one
 diagnoses a simulated board/die gradient (``sim/effects=board``) whose board sensor nobody declared.
 """
+from types import SimpleNamespace
+
 import numpy as np
 import pytest
 
 from gyronet.analysis.diagnose import screen
 from gyronet.analysis.diagnose.choose import Choice, approximations, complexity, tie_groups
-from gyronet.analysis.diagnose.report import approximation_sentence
+from gyronet.analysis.diagnose.report import approximation_sentence, evidence
 from gyronet.analysis.diagnose.screen import assign_folds
 from gyronet.analysis.diagnose.ties import block_contributions, paired_noise, span_labels
 from gyronet.model.features import feature_name
@@ -170,3 +172,13 @@ def test_the_screen_counts_the_held_out_blocks_it_scored():
     result = screen(basis, target, copies, fold, (fold >= 0).astype(int), ["a", "b"], [LAG_T, BOARD_LAG],
                     n_shifts=5, span_rows=10)
     assert result.n_rows == N_BLOCKS - 400
+
+
+def test_a_refined_effects_p_value_is_said_to_be_its_grid_points():
+    """The shift test ran on the grid: a refined lag's sentence named the refined score beside the grid's p."""
+    grid = {"kind": "lag", "source": "temp_c", "tau_s": 60.0}
+    result = SimpleNamespace(names=[feature_name(grid)], score=np.array([0.5]), p_value=np.array([0.005]),
+                             null_max=np.full(199, 0.1), rmse_before=np.full(3, 0.02), n_folds=5, n_rows=900)
+    refined = evidence({**grid, "tau_s": 16.0}, 0.6, np.full(3, 0.01), 0, result, ["x"], 0.01, 0.1, 0.4, 0.2)
+    assert f"against its grid point {feature_name(grid)} (score 0.5)" in refined and "p = 0.005" in refined
+    assert "against it, " in evidence(grid, 0.5, np.full(3, 0.01), 0, result, ["x"], 0.01, 0.1, 0.4, 0.2)

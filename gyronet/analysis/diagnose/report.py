@@ -79,14 +79,17 @@ def evidence(spec: Mapping[str, Any], score: float, rmse_after: np.ndarray, inde
     before = ", ".join(f"{a} {result.rmse_before[AXES.index(a)]:.3g}" for a in axes)
     after = ", ".join(f"{a} {rmse_after[AXES.index(a)]:.3g}" for a in axes)
     beaten = int((result.null_max >= result.score[index]).sum())
-    refined = "" if feature_name(spec) == result.names[index] else f" (refined from {result.names[index]})"
+    grid_point = result.names[index]
+    refined = "" if feature_name(spec) == grid_point else f" (refined from {grid_point})"
+    # the shift test ran on the grid: a refined effect's p-value is its grid point's, said so
+    tested = "it" if not refined else f"its grid point {grid_point} (score {result.score[index]:.3g})"
     held_out = ("a separate recording" if result.n_folds == 1
                 else f"{result.n_folds}-fold cross-validation over time spans")
     return (f"Added to the network's frozen regressors (its output layer refitted), {describe(spec)}{refined} cut "
             f"the held-out 60 s residual ({held_out}, {result.n_rows} blocks) from {before} to {after} deg/s, "
-            f"score {score:.3g} >= {min_gain:g}; the best of all {len(result.names)} candidates did as well in "
-            f"{beaten} of {len(result.null_max)} circular time shifts (family-wise p = {result.p_value[index]:.3g} "
-            f"<= {alpha:g}); the network retrained with it confirms it on its own held-out residual (the table "
+            f"score {score:.3g} >= {min_gain:g}; against {tested}, the best of all {len(result.names)} candidates "
+            f"did as well in {beaten} of {len(result.null_max)} circular time shifts (family-wise p = "
+            f"{result.p_value[index]:.3g} <= {alpha:g}); the network retrained with it confirms it on its own held-out residual (the table "
             f"below: score {confirmed:.3g} >= {confirm_gain:g}).")
 
 
