@@ -281,3 +281,22 @@ def test_a_deployment_says_what_its_bar_rests_on(bundle, cycle_csv, tmp_path, ca
                                 "too narrow on y, expect larger errors on a next run")
     bar.calibration["cross_within_1_sigma"] = [0.71, 0.65, 0.62]
     assert bar.narrow_axes() == [] and bar.trust_line().endswith("(x/y/z; goal 60-76 %)")
+
+
+def test_a_single_start_refit_keeps_the_bar_calibrated_on_blocks_it_had_not_seen(paper_csv, monkeypatch):
+    """``refit_all`` without ``validate_init``: the refit on every block must not replace the held-out
+    statistics taken before it with the refitted model's in-sample ones (a bar 3x too narrow)."""
+    from gyronet.training import error_bar_fit, train
+    from gyronet.training.dataset import DriftData
+
+    data = DriftData(str(paper_csv))
+    model = RBFNet(data.n_features, 3, 8, rbf_inputs=[0], linear=True, temp_degree=3, clamp=True, refit_all=True)
+    before = []
+    refit = train.continue_on_every_block
+    monkeypatch.setattr(train, "continue_on_every_block", lambda m, *a: (before.append(copy.deepcopy(m)), refit(m, *a)))
+    train.fit(model, data, max_epochs=60, progress=False, for_bundle=True)
+    assert len(before) == 1
+    stats = model.__dict__.get(error_bar_fit.STATS_ATTR)
+    assert stats is not None, "the held-out statistics were dropped by the refit"
+    expected = error_bar_fit.held_out_stats(before[0], None, *data.val_full, data.train.x)
+    np.testing.assert_allclose(stats["residual"], expected["residual"], rtol=1e-12, atol=0)

@@ -141,14 +141,17 @@ def fit(model: torch.nn.Module, data: DriftData, optim: Callable | None = None, 
     check_finite(final, "the trained model")
     log.info("fit: %d steps (best %d), held-out 60 s RMSE %s deg/s", final["train/steps"], final["train/best_step"],
              "/".join(f"{final.get(f'val/rmse_{a}_dps', float('nan')):.4g}" for a in ("x", "y", "z")))
+    stats = None
     if for_bundle and getattr(model, "refit_all", False) and every_block(data) is not None:
         # the error bar's held-out blocks, before the refit sees them
         time_s, vx, vy = data.val_full
-        error_bar_fit.attach(model, error_bar_fit.held_out_stats(model, None, time_s, vx, vy, data.train.x))
+        stats = error_bar_fit.held_out_stats(model, None, time_s, vx, vy, data.train.x)
     if for_bundle:
         continue_on_every_block(model, data, final, optim, dict(
             max_epochs=max_epochs, patience=patience, eval_every=eval_every, seed=seed, weight_decay=weight_decay,
             progress=progress, threads=threads), fit)
+    if stats is not None:  # attached after the refit, whose own fit() starts by detaching what an earlier fit left
+        error_bar_fit.attach(model, stats)
     return final
 
 
