@@ -38,6 +38,17 @@ def test_lr_schedule_warms_up_then_decays():
     assert lrs[-1] == pytest.approx(0.0005, rel=0.01)
 
 
+@pytest.mark.parametrize("option", [{"max_epochs": 0}, {"max_epochs": -5}, {"eval_every": 0}, {"patience": -1}])
+def test_a_step_count_that_cannot_train_is_one_line(option):
+    """train.max_epochs=0 ended in an UnboundLocalError, train.eval_every=0 in a ZeroDivisionError."""
+    from gyronet.errors import ConfigError
+    from gyronet.model.rbf import RBFNet
+    from gyronet.training.train import fit
+
+    with pytest.raises(ConfigError, match=f"train.{next(iter(option))} must be a whole number"):
+        fit(RBFNet(3, 3, 4), None, progress=False, **option)
+
+
 def test_train_script_writes_bundle_report_and_tensorboard(tmp_path, paper_csv, cycle_csv):
     console = []
     report = _train(tmp_path, f"data.path={paper_csv}", f"eval.paths=[{cycle_csv}]", "train.max_epochs=60",

@@ -7,12 +7,13 @@ from __future__ import annotations
 
 import copy
 import logging
+import numbers
 from typing import Any, Callable
 
 import torch
 from tqdm.auto import tqdm
 
-from gyronet.errors import GyronetError
+from gyronet.errors import ConfigError, GyronetError
 from gyronet.training import error_bar_fit
 from gyronet.training.dataset import Blocks, DriftData, block_rmse  # noqa: F401 (Blocks, block_rmse: old imports)
 from gyronet.training.evaluate import evaluate, residual_report
@@ -60,6 +61,9 @@ def fit(model: torch.nn.Module, data: DriftData, optim: Callable | None = None, 
         for it (``RBFNet.refit_all``) continues on every block once validation has confirmed the
         fit. Off for fits that are themselves validated afterwards (the diagnosis's folds).
     """
+    for name, value, least in (("max_epochs", max_epochs, 1), ("eval_every", eval_every, 1), ("patience", patience, 0)):
+        if not (isinstance(value, numbers.Integral) and value >= least):  # 0 steps left nothing to report, 0 divided by zero
+            raise ConfigError(f"train.{name} must be a whole number >= {least}, got {value!r}")
     if threads:
         torch.set_num_threads(threads)
     torch.manual_seed(seed)
