@@ -96,6 +96,13 @@ def test_rate_tau_s_must_be_positive(paper_csv, tau_s):
         training_data(path=str(paper_csv), rate_tau_s=tau_s)
 
 
+@pytest.mark.parametrize("block_s", [0.0, -10.0, float("nan")])
+def test_block_s_must_be_positive(paper_csv, block_s):
+    """-10 trained silently on single samples (every one its own block); 0 was a ValueError from np.bincount."""
+    with pytest.raises(GyronetError, match=r"data.block_s must be > 0 s .*got"):
+        training_data(path=str(paper_csv), block_s=block_s)
+
+
 @pytest.mark.parametrize("startup_s", [-100.0, float("nan"), float("inf")])
 def test_val_startup_s_must_be_a_window(paper_csv, startup_s):
     """-100 was taken as 0 but written to the bundle as -100, so use_startup never widened the bar for the offset."""

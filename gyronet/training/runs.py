@@ -120,6 +120,8 @@ def training_data(path: str | None = None, paths: Sequence[str] | None = None, r
     """
     if rate_tau_s is not None and not rate_tau_s > 0:  # 0 divides by zero, a negative one diverges the fit
         raise ConfigError(f"data.rate_tau_s must be > 0 s (the dT/dt tracker's time constant), got {rate_tau_s}")
+    if not (block_s > 0 and math.isfinite(block_s)):  # a negative one averaged nothing, silently; 0 a cryptic error
+        raise ConfigError(f"data.block_s must be > 0 s (the averaging block the model is fitted on), got {block_s}")
     if val_startup_s is not None and not (val_startup_s >= 0 and math.isfinite(val_startup_s)):
         # a negative one was taken as 0 but written to the bundle, which then never widened the bar for the offset
         raise ConfigError(f"data.val_startup_s must be >= 0 s (the start-up window held-out runs are scored after; "
