@@ -256,3 +256,17 @@ def test_a_bad_held_out_recording_is_refused_before_the_fit(paper_csv, tmp_path,
         pipeline.train_run(data, RBFNet(data.n_features, 3, 4), None, tmp_path / "run", {"max_epochs": 5},
                            eval_paths=[str(held_out)])
     assert not (tmp_path / "run").exists()
+
+
+def test_a_held_out_recording_that_is_the_training_data_is_said_to_be_in_sample(paper_csv, cycle_csv, tmp_path, caplog):
+    """eval.paths=[the training file] was reported as "held-out", its in-sample figures as if on another history."""
+    from gyronet.model.baselines import TempPolynomial
+    from gyronet.training.dataset import DriftData
+    from gyronet.training.pipeline import train_run
+
+    data = DriftData(str(paper_csv))
+    with caplog.at_level(logging.WARNING, logger="gyronet.training.pipeline"):
+        train_run(data, TempPolynomial(data.n_features), None, tmp_path, {"progress": False},
+                  eval_paths=[str(paper_csv), str(cycle_csv)])
+    warned = [r.getMessage() for r in caplog.records if "in sample" in r.getMessage()]
+    assert len(warned) == 1 and str(paper_csv) in warned[0] and "training data" in warned[0]

@@ -176,6 +176,9 @@ def train_run(data: DriftData, model: torch.nn.Module, optim: Callable | None, o
     """
     out_dir = Path(out_dir)
     held_out = load_held_out(eval_paths, data.fs_hz)
+    trained = {r.recording.checksum() for r in getattr(data, "runs", None) or []} or {data.recording.checksum()}
+    for path in (p for p, (recording, _) in held_out.items() if recording.checksum() in trained):
+        log.warning("eval.paths: %s holds the training data: its figures below are in sample, not held out", path)
     folds = None
     if getattr(data, "n_runs", 1) > 1:  # several runs: leave-one-run-out, then the final fit on every run
         from gyronet.training.runs import fit_by_run
