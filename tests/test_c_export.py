@@ -304,6 +304,18 @@ def test_a_column_name_that_would_end_a_c_comment_still_compiles(aux_csv, tmp_pa
     assert "sup* /ply_v" in (tmp_path / "c" / "gyronet_compensator.h").read_text()
 
 
+@needs_cc
+def test_product_in_c_multiplies_t_by_its_own_rate_whatever_rate_comes_first(aux_csv, tmp_path):
+    """The C export took the first rate of any source for T * dT/dt, as Python did."""
+    from gyronet.model.baselines import LinearFeatures
+
+    specs = [{"kind": "temp"}, {"kind": "rate", "source": AUX}, {"kind": "rate", "tau_s": 5.0}, {"kind": "product"}]
+    bundle = _train(tmp_path / "aux_rate", aux_csv, lambda n: LinearFeatures(n, 3), features=specs)
+    exe, summary = _build(bundle, tmp_path)
+    columns = _hard(_columns(aux_csv))
+    _check(_run_c(exe, columns, summary["aux_inputs"], tmp_path), _python(bundle, columns))
+
+
 def test_unknown_model_class_is_one_line(bundle, tmp_path):
     """A bundle whose model is a class the generator does not know (a future PX4 polynomial) is refused in one line."""
     from gyronet.bundle.io import load_bundle, save_bundle

@@ -49,6 +49,21 @@ def test_rate_is_zero_on_a_dwell_and_product_is_t_times_rate():
     np.testing.assert_allclose(features[:, 2], features[:, 0] * features[:, 1])
 
 
+def test_product_multiplies_t_by_its_own_rate_whatever_rate_comes_first():
+    """A supply voltage's rate listed first gave T * dVdd/dt under the name temp_x_rate_c2_per_s."""
+    time_s, temp_c, _ = _ramp(duration_s=400.0, start_s=100.0)
+    columns = {"time_s": time_s, "temp_c": temp_c, "vdd_v": 3.3 + 0.01 * np.sin(time_s / 50)}
+    specs = [{"kind": "temp"}, {"kind": "rate", "source": "vdd_v"}, {"kind": "rate", "tau_s": 5.0, "lag_s": 30.0},
+             {"kind": "rate", "tau_s": 5.0}, {"kind": "product"}]
+    batch = FeatureExtractor(specs, FS_HZ).process(columns)
+    np.testing.assert_allclose(batch[:, 4], batch[:, 0] * batch[:, 3])
+    live = FeatureExtractor(specs, FS_HZ)
+    rows = [live.process({k: v[i:i + 1] for k, v in columns.items()}) for i in range(len(time_s))]
+    np.testing.assert_allclose(np.vstack(rows), batch, rtol=0, atol=1e-12)
+    with pytest.raises(ValueError, match="the temperature's 'rate' feature"):
+        FeatureExtractor(specs[:3] + specs[4:], FS_HZ).process(columns)
+
+
 def test_live_one_sample_at_a_time_equals_batch():
     time_s, temp_c, _ = _ramp(duration_s=400.0, start_s=100.0)
     vdd = 3.3 + 0.01 * np.sin(time_s / 50)

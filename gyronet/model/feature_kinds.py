@@ -8,7 +8,7 @@ from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 
-from gyronet.model.feature_specs import feature_name
+from gyronet.model.feature_specs import feature_name, product_rate_index
 
 
 def segment_values(specs: Sequence[Mapping[str, Any]], names: Sequence[str], filters: Mapping[int, Any], run_play: Callable,
@@ -16,14 +16,15 @@ def segment_values(specs: Sequence[Mapping[str, Any]], names: Sequence[str], fil
     """The features of a segment of accepted rows of one period, between gaps (arrays)."""
     restart_gap_s = None if event == "power_on" else gap_s
     done: dict[str, np.ndarray] = {}
-    kinds = {name: spec["kind"] for name, spec in zip(names, specs)}
     for i, spec in enumerate(specs):
-        done[names[i]] = _one(i, spec, filters, run_play, kinds, chunk, done, event, restart_gap_s)
+        done[names[i]] = _one(i, specs, names, filters, run_play, chunk, done, event, restart_gap_s)
     return np.column_stack([done[n] for n in names])
 
-def _one(i: int, spec: Mapping[str, Any], filters: Mapping[int, Any], run_play: Callable, kinds: Mapping[str, str],
-         chunk: Mapping[str, np.ndarray], done: Mapping[str, np.ndarray], event: str | None,
+
+def _one(i: int, specs: Sequence[Mapping[str, Any]], names: Sequence[str], filters: Mapping[int, Any],
+         run_play: Callable, chunk: Mapping[str, np.ndarray], done: Mapping[str, np.ndarray], event: str | None,
          gap_s: float | None) -> np.ndarray:
+    spec = specs[i]
     kind, source = spec["kind"], spec.get("source", "temp_c")
     x = chunk.get(source)
     if kind in ("temp", "column") and i not in filters:
@@ -35,10 +36,7 @@ def _one(i: int, spec: Mapping[str, Any], filters: Mapping[int, Any], run_play: 
     if kind == "product":
         if float(spec.get("lag_s", 0.0)) > 0:
             return _lagged_product(spec, done)
-        rate = next((v for n, v in done.items() if kinds[n] == "rate"), None)
-        if rate is None:
-            raise ValueError("a 'product' feature needs a 'rate' feature before it")
-        return chunk["temp_c"] * rate
+        return chunk["temp_c"] * done[names[product_rate_index(specs, i)]]
     if kind == "power":
         return (x - float(spec.get("centre", 0.0))) ** float(spec["exponent"])
     if kind == "hysteresis":
@@ -67,7 +65,6 @@ def row_values(specs: Sequence[Mapping[str, Any]], names: Sequence[str], filters
                gap_s: float | None) -> list[float]:
     """The features of one accepted sample (``segment_values`` for a segment of one, in floats)."""
     row: list[float] = []
-    rate = None
     for i, spec in enumerate(specs):
         kind, x = spec["kind"], values.get(spec.get("source", "temp_c"), 0.0)
         if kind == "temp":
@@ -76,15 +73,12 @@ def row_values(specs: Sequence[Mapping[str, Any]], names: Sequence[str], filters
             if event is not None:
                 filters[i].restart(x, gap_s)
             value = filters[i].step(x)
-            rate = value if kind == "rate" and rate is None else rate
         elif kind == "column":
             value = x
         elif kind == "product" and float(spec.get("lag_s", 0.0)) > 0:
             value = _lagged_product(spec, dict(zip(names, row)))
         elif kind == "product":
-            if rate is None:
-                raise ValueError("a 'product' feature needs a 'rate' feature before it")
-            value = values["temp_c"] * rate
+            value = values["temp_c"] * row[product_rate_index(specs, i)]
         elif kind == "power":
             value = float(((np.array([x]) - float(spec.get("centre", 0.0))) ** float(spec["exponent"]))[0])
         elif kind == "hysteresis":

@@ -19,7 +19,8 @@ time       time since the start: exp(-t/``tau_s``) or, without tau, hours    ``w
 ========== ================================================================= ====================
 
 The product uses dT/dt per second: with a per-sample change dT the paper's T*dT is this
-feature times the sample interval, a constant factor the model absorbs.
+feature times the sample interval, a constant factor the model absorbs. Its dT/dt is the
+temperature's own unlagged ``rate`` listed before it, whatever other rates come first.
 """
 from __future__ import annotations
 
@@ -60,6 +61,16 @@ def feature_name(spec: Mapping[str, Any]) -> str:
     if kind == "time":
         return f"warmup{spec['tau_s']:g}s" if spec.get("tau_s") else "age_h"
     raise ValueError(f"unknown feature kind {kind!r}")
+
+
+def product_rate_index(specs: Sequence[Mapping[str, Any]], index: int) -> int:
+    """The spec an unlagged product (T * dT/dt) multiplies T by: the temperature's own unlagged rate before it."""
+    for j, spec in enumerate(specs[:index]):
+        if (spec["kind"] == "rate" and spec.get("source", "temp_c") == "temp_c"
+                and not float(spec.get("lag_s", 0.0)) > 0):
+            return j
+    raise ValueError("a 'product' feature (T * dT/dt) needs the temperature's 'rate' feature (no source, no lag_s) "
+                     "before it")
 
 
 def required_columns(specs: Sequence[Mapping[str, Any]]) -> list[str]:

@@ -13,7 +13,7 @@ from typing import Any, Mapping, NamedTuple, Sequence
 from gyronet.deploy.c import c_float
 from gyronet.errors import BundleError
 from gyronet.model.feature_kinds import lagged_inputs
-from gyronet.model.feature_specs import feature_name
+from gyronet.model.feature_specs import feature_name, product_rate_index
 from gyronet.recordings.guard import MAX_TEMP_RATE_C_PER_S
 
 # an unbounded slope for a rate of another column than the temperature
@@ -44,7 +44,6 @@ def feature_code(specs: Sequence[Mapping[str, Any]], fs_hz: float, aux: Sequence
     dt_s = 1.0 / fs_hz
     constants, accepted, power_on, timed = [], [], [], []
     n_filter = n_play = 0
-    first_rate = None
     raw_slope_of = {}  # (source, tau_s, max_slope) -> a feature holding that tracker's slope, unlagged
     # v as a fresh filter sees it in a rejected row: the prior temperature, other columns 0 where not finite
     power_on.append("    float w[1 + GYRONET_N_AUX];\n    w[0] = PRIOR_TEMP_C;")
@@ -79,7 +78,6 @@ def feature_code(specs: Sequence[Mapping[str, Any]], fs_hz: float, aux: Sequence
                 if not lagged:
                     raw_slope_of.setdefault(tracker, i)
             power_on.append(f"    x[{i}] = 0.0f;")
-            first_rate = i if first_rate is None else first_rate
             if lagged:  # then through a lag (gyronet.model.filters.LaggedRate)
                 constant, statement = _lag_c(f"RATE_LAG_{i}", float(spec["lag_s"]), dt_s, n_filter, slope, i)
                 constants.append(constant)
@@ -92,9 +90,11 @@ def feature_code(specs: Sequence[Mapping[str, Any]], fs_hz: float, aux: Sequence
             accepted.append(f"    x[{i}] = x[{index_of[temp_name]}] * x[{index_of[rate_name]}];")
             power_on.append(f"    x[{i}] = 0.0f;")
         elif kind == "product":
-            if first_rate is None:
-                raise BundleError(f"{where}: a 'product' feature needs a 'rate' feature before it")
-            accepted.append(f"    x[{i}] = v[0] * x[{first_rate}];")
+            try:
+                rate_index = product_rate_index(specs, i)
+            except ValueError as err:
+                raise BundleError(f"{where}: {err}") from None
+            accepted.append(f"    x[{i}] = v[0] * x[{rate_index}];")
             power_on.append(f"    x[{i}] = 0.0f;")
         elif kind == "lag" or (kind == "column" and float(spec.get("tau_s", 0.0)) > 0):
             constant, statement = _lag_c(f"LAG_{i}", float(spec["tau_s"]), dt_s, n_filter, f"v[{k}]", i)
