@@ -1,6 +1,7 @@
 """Several runs in one training: per-run features and blocks, leave-one-run-out, run offsets, the bundle's runs."""
 import copy
 import json
+import logging
 import subprocess
 import sys
 
@@ -424,3 +425,18 @@ def test_final_fit_record_does_not_depend_on_the_order_of_the_runs(paper_csv, cy
     chosen = {RunsData(load_runs([str(p) for p in order], PAPER_FEATURES), list(PAPER_FEATURES)).recording.path
               for order in (paths, paths[::-1])}
     assert len(chosen) == 1
+
+
+@pytest.mark.parametrize("fraction, said", [(0.4, "one span in 2 of data.n_blocks=10: 5 spans, 50 %"),
+                                            (0.25, "one span in 4 of data.n_blocks=10: 2 spans, 20 %")])
+def test_a_val_fraction_no_split_gives_says_what_is_held_out(paper_csv, caplog, fraction, said):
+    """0.4 held out half the record, silently (every k-th span, k = round(1 / val_fraction))."""
+    with caplog.at_level(logging.WARNING, logger="gyronet.training.runs"):
+        training_data(path=str(paper_csv), val_fraction=fraction)
+    assert said in caplog.text
+    caplog.clear()
+    with caplog.at_level(logging.WARNING, logger="gyronet.training.runs"):
+        training_data(path=str(paper_csv))
+    assert "val_fraction" not in caplog.text
+    with pytest.raises(GyronetError, match=r"data.val_fraction must be in \(0, 1\)"):
+        training_data(path=str(paper_csv), val_fraction=1.5)

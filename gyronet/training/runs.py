@@ -23,7 +23,7 @@ from torch import nn
 
 from gyronet.errors import ConfigError, GyronetError
 from gyronet.model.features import PAPER_FEATURES
-from gyronet.recordings.data import AXES
+from gyronet.recordings.data import AXES, fold_count
 from gyronet.training.capacity import MIN_IN_BOX_S, inside_box
 from gyronet.training.dataset import MIN_TRAIN_BLOCKS, DriftData, TrainingData
 from gyronet.training.run_data import Run, RunBlocks, check_long_enough, load_runs, scored_after_startup, run_name, stack_runs
@@ -107,6 +107,18 @@ class RunsData(TrainingData):
         return meta
 
 
+def _say_held_out_share(val_fraction: float, n_blocks: int, val_fold: int | None) -> None:
+    """Refuse a share no split gives; say the share held out when every k-th span is not ``val_fraction``."""
+    if not (0.0 < val_fraction < 1.0 and n_blocks >= 2):
+        raise ConfigError(f"data.val_fraction must be in (0, 1) and data.n_blocks at least 2, got {val_fraction} "
+                          f"and {n_blocks}")
+    k = fold_count(val_fraction)
+    held = sum(1 for span in range(n_blocks) if span % k == (k // 2 if val_fold is None else val_fold % k))
+    if abs(held / n_blocks - val_fraction) > 0.01:
+        log.warning("data.val_fraction=%g holds out one span in %d of data.n_blocks=%d: %d spans, %.0f %% of the "
+                    "record", val_fraction, k, n_blocks, held, 100.0 * held / n_blocks)
+
+
 def training_data(path: str | None = None, paths: Sequence[str] | None = None, run_offsets: bool = False,
                   val_startup_s: float = 0.0, features: list | None = None, block_s: float = 10.0,
                   val_fraction: float = 0.2, n_blocks: int = 10, val_fold: int | None = None,
@@ -132,6 +144,8 @@ def training_data(path: str | None = None, paths: Sequence[str] | None = None, r
         raise GyronetError("no training data: give data.path=F.csv or data.paths=[A.csv,B.csv]")
     features = [dict(s) for s in (features or PAPER_FEATURES)]
     if path is not None or len(paths) == 1:
+        if not val_path:
+            _say_held_out_share(val_fraction, n_blocks, val_fold)
         if run_offsets:
             log.debug("data.run_offsets needs two or more runs: off for one recording")
         return DriftData(path=str(path if path is not None else paths[0]), features=features, block_s=block_s,
