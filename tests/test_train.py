@@ -270,3 +270,10 @@ def test_a_held_out_recording_that_is_the_training_data_is_said_to_be_in_sample(
                   eval_paths=[str(paper_csv), str(cycle_csv)])
     warned = [r.getMessage() for r in caplog.records if "in sample" in r.getMessage()]
     assert len(warned) == 1 and str(paper_csv) in warned[0] and "training data" in warned[0]
+
+
+def test_a_bar_calibrated_on_data_val_path_says_so(tmp_path, paper_csv, cycle_csv):
+    """The note said "held-out time blocks of this one recording" of a bar calibrated on data.val_path."""
+    console = []
+    _train(tmp_path, f"data.path={paper_csv}", f"data.val_path={cycle_csv}", "model=poly3", console=console)
+    assert f"error bar: calibrated on the validation recording {cycle_csv};" in console[0]

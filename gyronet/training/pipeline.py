@@ -25,7 +25,7 @@ from gyronet.training.train import evaluate, fit
 log = logging.getLogger(__name__)
 
 # how far to trust an error bar calibrated within one recording (the survey filters exactly this warning)
-ONE_RECORDING_BAR_NOTE = ("error bar: calibrated on held-out time blocks of this one recording; on a real sensor's "
+ONE_RECORDING_BAR_NOTE = ("error bar: calibrated on %s; on a real sensor's "
                           "next run the error was 3-15x the bar (docs/results/error-bars.md). Train on two or more "
                           "runs (data.paths) for a bar checked on a run it was not calibrated on")
 # what one training of the default on one recording is worth: how far the shipped mixture (not the fits it mixes)
@@ -198,7 +198,8 @@ def train_run(data: DriftData, model: torch.nn.Module, optim: Callable | None, o
         log.info(line)
     meta = _meta(model, data)
     if folds is None and "error_bar" in meta:
-        log.warning(ONE_RECORDING_BAR_NOTE)
+        log.warning(ONE_RECORDING_BAR_NOTE, f"the validation recording {data.val_path}" if getattr(data, "val_path", None)
+                    else "held-out time blocks of this one recording")
     bundle_dir = save_bundle(model, meta, out_dir / "compensator", kalman_stage(kalman_cfg, model, data))
     evaluations = evaluate_paths(bundle_dir, held_out, eval_block_s)
     report = {"model": model_info(model), "train_path": data.path, "metrics": metrics,
