@@ -108,6 +108,8 @@ def cases(work: Path, chamber_run: Path) -> dict[str, tuple[str, list[str], tupl
         "record-existing_output": ("record", [*record, f"output={chamber_run}"], ("overwrite=true", str(chamber_run))),
         "record-summary_is_output": ("record", [*record, f"output={work}/r.csv", f"summary={work}/r.csv"],
                                      ("summary= names the recording itself",)),
+        # a misspelt protocol ended in make_parser's traceback after the bundle loaded
+        "stream-protocol": ("stream", [*stream, "protocol=lpbuss"], ("protocol must be lpbus or csv, got 'lpbuss'",)),
     }
 
 

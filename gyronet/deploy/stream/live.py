@@ -39,7 +39,7 @@ from gyronet.deploy.stream.priority import use_realtime
 from gyronet.deploy.stream.reader import open_port_or_fail, read_chunks
 from gyronet.deploy.stream.signals import stop_on_signals
 from gyronet.deploy.stream.summary import write_summary
-from gyronet.errors import GyronetError
+from gyronet.errors import ConfigError, GyronetError
 
 log = logging.getLogger(__name__)
 
@@ -109,6 +109,8 @@ def run_stream(bundle_dir: str | Path, port: str, output: str | Path, protocol: 
         summary written (or logged as impossible); the output ends with a complete line.
     """
     check_run_limits(baud, max_samples, duration_s, read_timeout_s)
+    if protocol not in ("lpbus", "csv"):  # make_parser's ValueError came after the bundle loaded, as a traceback
+        raise ConfigError(f"protocol must be lpbus or csv, got {protocol!r}")
     options = dict(reconnect or {})
     wait_at_start = bool(options.pop("wait_at_start", False))
     use_realtime(realtime_priority)()  # refused now, before the port opens, rather than after the set-up
