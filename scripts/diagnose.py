@@ -10,6 +10,7 @@ from hydra.utils import instantiate
 from omegaconf import DictConfig, OmegaConf
 
 from gyronet.analysis.diagnose import diagnose
+from gyronet.errors import fail
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # scripts/_cli.py, also when this file is run by path
 from _cli import command  # noqa: E402
@@ -24,5 +25,18 @@ def main(cfg: DictConfig) -> None:
              options=OmegaConf.to_container(cfg.diagnose), seed=cfg.seed)
 
 
+def refuse_train_only_options(overrides: list[str]) -> None:
+    """``model=``, ``kalman=``, ``search=`` and ``eval.*`` are train.py's: Hydra ran ``model=rbf``, ignored
+    ``+kalman=ar`` (what its own message for ``kalman=ar`` advises) and refused ``model=poly3`` with a setting of
+    the default model (``model.validate_init``): one line that says so instead."""
+    for override in overrides:
+        key, _, value = override.partition("=")
+        key = key.lstrip("+~")
+        if (key == "model" and value != "default") or key.split(".")[0] in ("kalman", "search", "eval"):
+            fail(f"{override}: diagnose.py trains gyronet's default model and takes train.py's data.* options, "
+                 "not model=, kalman=, search= or eval.* (docs/reference/commands.md)")
+
+
 if __name__ == "__main__":
+    refuse_train_only_options(sys.argv[1:])
     main()

@@ -517,6 +517,9 @@ BAD_CONFIGS = {
     "seed_text": (["seed=abc"], "seed must be an integer"),
     "epochs_text": (["train.max_epochs=abc"], "train.max_epochs must be an integer"),
     "plus_typo": (["+diagnose.alpah=0.1"], "unknown setting diagnose.alpah; did you mean diagnose.alpha?"),
+    # train.py's options: model=poly3 was refused with "unknown setting model.validate_init", +kalman=ar ignored
+    "model_choice": (["model=poly3"], "model=poly3: diagnose.py trains gyronet's default model"),
+    "kalman_added": (["+kalman=ar"], "not model=, kalman=, search= or eval.*"),
 }
 
 
