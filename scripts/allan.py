@@ -60,6 +60,9 @@ def _refuse_rate_change(recording, source) -> None:
 def main(cfg: DictConfig) -> None:
     if OmegaConf.is_missing(cfg, "input"):
         raise GyronetError("no recording given: add input=F.csv")
+    if Path(str(cfg.output)).suffix.lower() == ".png":  # the JSON was written there, then replaced by its own plot
+        raise GyronetError(f"output={cfg.output}: output names the JSON report, and its plot goes beside it with the "
+                           "suffix .png, which would replace it: name the report A.json (the plot is then A.png)")
     if is_rosbag(cfg.input):
         recording = read_rates(cfg.input, cfg.rosbag.imu_topic, cfg.rosbag.stamp)
     else:

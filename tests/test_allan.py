@@ -344,6 +344,19 @@ def test_script_bad_input_one_line(tmp_path, content):
     assert not (tmp_path / "a.json").exists()
 
 
+def test_script_refuses_an_output_named_as_its_plot(tmp_path):
+    """output=a.png wrote the JSON there and replaced it with the plot: "wrote a.png and a.png"."""
+    time_s, rate = _three_axis_record(n=600)
+    write_recording(tmp_path / "rec.csv", {"time_s": time_s, **{f"gyro_{a}_dps": rate[:, i]
+                                                                for i, a in enumerate("xyz")}})
+    proc = _run_script("input=rec.csv", "output=a.png", cwd=tmp_path)
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr
+    assert proc.stderr.strip().splitlines() == ["error: output=a.png: output names the JSON report, and its plot goes "
+                                                "beside it with the suffix .png, which would replace it: name the "
+                                                "report A.json (the plot is then A.png)"]
+    assert not (tmp_path / "a.png").exists()
+
+
 def test_script_refuses_a_record_whose_rate_changes(tmp_path):
     """1 h at 100 Hz then 2 h at 50 Hz read N 22 % high with no word (a review): an Allan curve needs one rate."""
     time_s = np.concatenate([np.arange(6000) / 100.0, 60.0 + np.arange(1, 3000) / 50.0])
