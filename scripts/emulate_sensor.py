@@ -31,6 +31,8 @@ def main(cfg: DictConfig) -> None:
     options = OmegaConf.to_container(cfg, resolve=True)
     if not options["speed"] >= 0:  # a negative speed played as fast as possible, silently
         raise ConfigError(f"speed must be 0 (as fast as the reader takes it) or more, got {options['speed']}")
+    if options["protocol"] not in ("lpbus", "csv"):  # was refused after the recording loaded, under its file name
+        raise ConfigError(f"protocol must be lpbus or csv, got {options['protocol']!r}")
     sensor = options.get("sensor") or {}
     device = built("sensor", lambda: EmulatedLpms(**{**sensor, "firmware": tuple(sensor["firmware"]),
                                                      "fields": tuple(sensor["fields"])})) if sensor.get("model") else None

@@ -71,6 +71,7 @@ def cases(work: Path, victim: Path, recording: Path) -> dict[str, tuple[list[str
         "link_folder_missing": ([*base, f"link={work}/nope/sensor"], ("link=", "does not exist")),
         "speed_text": ([*base, "speed=abc"], ("speed must be a number, got 'abc'",)),
         "speed_negative": ([*base, "speed=-1"], ("speed must be 0",)),
+        "protocol_typo": ([*base, "protocol=cvs"], ("error: protocol must be lpbus or csv, got 'cvs'",)),
         "fault_rate": ([*base, "faults.corrupt_rate=2"], ("faults: fault rates must be in [0, 1]",)),
         "unknown_model": ([*base, "sensor.model=LPMS-XYZ"], ("no emulated sensor 'LPMS-XYZ'", "LPMS-CU2")),
     }
