@@ -145,7 +145,8 @@ def _locate(path: str) -> Any:
 def unknown_setting(key: str, known: list[str]) -> str:
     """``unknown setting data.pth; did you mean data.path?`` (or the known ones when none is close)."""
     if key in known:  # a mapping that exists but takes no new keys by assignment (an empty {} in the yaml)
-        return f"{key} takes new entries one at a time: +{key}.<name>=<value>"
+        return (f"{key} takes new entries with a +: '+{key}={{<name>: <value>, ...}}' or one at a time, "
+                f"+{key}.<name>=<value>")
     match = difflib.get_close_matches(key, known, n=1, cutoff=0.6)
     if match:
         return f"unknown setting {key}; did you mean {match[0]}?"

@@ -311,3 +311,12 @@ def test_ctrl_c_is_one_line_and_exit_130(tmp_path):
     proc.send_signal(signal.SIGINT)
     out, err = proc.communicate(timeout=60)
     assert proc.returncode == 130 and err.strip() == "interrupted (Ctrl-C)", err
+
+
+def test_a_mapping_that_takes_entries_with_a_plus_says_both_forms():
+    """table.py 'bundles={a: D}' named only +bundles.<name>=, not the '+bundles={...}' the docs use."""
+    sys.path.insert(0, str(ROOT / "scripts"))
+    from _settings import unknown_setting
+
+    said = unknown_setting("bundles", ["bundles", "input"])
+    assert "'+bundles={<name>: <value>, ...}'" in said and "+bundles.<name>=<value>" in said
