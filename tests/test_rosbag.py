@@ -238,6 +238,7 @@ def test_convert_script_on_a_bag_folder(tmp_path):
     np.testing.assert_allclose(back.time_s, (imu["stamp_ns"] - imu["stamp_ns"][0]) * 1e-9, rtol=0, atol=1e-9)
     np.testing.assert_allclose(back.gyro_dps, np.degrees(imu["rate_rad_s"]), rtol=1e-9)
     assert back.meta["source_format"] == "rosbag" and back.meta["source_file"] == "rec"
+    assert "rec (rosbag): 300 samples kept" in done.stdout + done.stderr  # the folder, not its metadata.yaml
 
 
 @pytest.mark.slow

@@ -146,7 +146,7 @@ def _ordered(columns: Mapping[str, np.ndarray]) -> dict[str, np.ndarray]:
 
 def finish(path: Path, columns: Mapping[str, np.ndarray], meta: Mapping[str, object],
            source_format: str, *, dropped: Mapping[str, int] | None = None,
-           row_label: str = "row", first_row: int = 1) -> Recording:
+           row_label: str = "row", first_row: int = 1, sha256: str | None = None) -> Recording:
     """Validate importer output, drop unusable rows (counted), and add the provenance metadata.
 
     Parameters
@@ -163,6 +163,8 @@ def finish(path: Path, columns: Mapping[str, np.ndarray], meta: Mapping[str, obj
         Rows the importer already removed, by reason (e.g. ``{"spike": 3}``), counted in the total.
     row_label, first_row
         How errors name a row: ``f"{row_label} {first_row + index}"`` (a CSV line, a message, ...).
+    sha256
+        The source's hash, when it is not ``path``'s bytes (a bag folder); default: hash ``path``.
 
     Returns
     -------
@@ -218,7 +220,7 @@ def finish(path: Path, columns: Mapping[str, np.ndarray], meta: Mapping[str, obj
     total = sum(counts.values())
     rate_hz = regular_rate_hz(columns["time_s"])
     meta_out = {"source_format": source_format, "source_file": path.name,
-                "source_sha256": file_sha256(path), **meta_out}
+                "source_sha256": sha256 or file_sha256(path), **meta_out}
     if rate_hz is not None:
         meta_out["fs_hz"] = f"{rate_hz:.6g}"
     meta_out["dropped_rows"] = str(total)

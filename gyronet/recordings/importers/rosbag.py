@@ -100,12 +100,9 @@ def import_rosbag(path: str | os.PathLike, imu_topic: str | None = None, temp_to
     keep = np.isfinite(columns["temp_c"])
     columns = {k: v[keep] for k, v in columns.items()}
     meta.update(ros_temp_topic=temp_name, sensor=sensor or meta["sensor"])
-    # finish() hashes a file: a bag folder is hashed here and its metadata.yaml stands in
-    recording = finish(path / "metadata.yaml" if path.is_dir() else path, columns, meta, "rosbag",
-                       dropped=dropped, row_label="IMU message", first_row=0)
-    recording.meta.update(source_file=path.name, source_sha256=_sha256(path))
-    recording.path = str(path)
-    return recording
+    # a bag folder is hashed here, whole: finish() would hash one file
+    return finish(path, columns, meta, "rosbag", dropped=dropped, row_label="IMU message", first_row=0,
+                  sha256=_sha256(path))
 
 
 def read_rates(path: str | os.PathLike, imu_topic: str | None = None, stamp: str = "header") -> Recording:
