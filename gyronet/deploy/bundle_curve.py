@@ -72,8 +72,12 @@ def bundle_curve(bundle_dir: str | Path, grid_points: int = 2001) -> tuple[np.nd
     """A bundle's steady-state curve: the grid over its clamp range (or trained range), the curve (n, 3) on it,
     the curve as a function of temperatures (n,) and the model's class; what no cubic can express is refused."""
     from gyronet.bundle.io import read_bundle
+    from gyronet.bundle.schema import META_FILE, check_model, validate_meta
 
     bundle = read_bundle(bundle_dir)
+    # every check Compensator.load makes: an edited meta.json is refused in one line, not used or a traceback
+    validate_meta(bundle.meta, f"{bundle_dir}/{META_FILE}")
+    check_model(bundle.model, bundle.facts, bundle.meta, str(bundle_dir))
     if bundle.kalman is not None:
         raise BundleError(f"{bundle_dir}: has a Kalman stage, which a temperature polynomial cannot express; "
                           "export format=c, or train without kalman=")

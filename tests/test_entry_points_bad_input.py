@@ -1,0 +1,52 @@
+"""Bad input found by fuzzing the offline entry points: each case is one line and exit 2 (or a one-line error from
+the library), never a traceback, and never an edited or wrong value used silently."""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+import torch
+
+from gyronet.bundle.compensator import build_meta
+from gyronet.bundle.io import save_bundle
+from gyronet.errors import BundleError
+from gyronet.training.pipeline import model_info
+
+
+@pytest.fixture(scope="module")
+def tiny_bundle(tmp_path_factory) -> Path:
+    """A linear model on temperature alone: what a cubic can express, saved with checksums."""
+    from gyronet.model.baselines import LinearFeatures
+
+    torch.manual_seed(0)
+    model = LinearFeatures(1)
+    model.fit_closed_form(torch.randn(40, 1, dtype=torch.float64), torch.randn(40, 3, dtype=torch.float64))
+    meta = build_meta([{"kind": "temp"}], ["temp_c"], 2.0, (0.0, 40.0),
+                      ["time_s", "temp_c", "gyro_x_dps", "gyro_y_dps", "gyro_z_dps"], "0" * 64, model_info(model))
+    return save_bundle(model, meta, tmp_path_factory.mktemp("tiny") / "compensator")
+
+
+def _edited(bundle: Path, folder: Path, **fields) -> Path:
+    import shutil
+
+    copy = Path(shutil.copytree(bundle, folder / "edited"))
+    meta = json.loads((copy / "meta.json").read_text())
+    meta.update(fields)
+    (copy / "meta.json").write_text(json.dumps(meta))
+    return copy
+
+
+@pytest.mark.parametrize("fields, reason", [({"model": None}, "'model' must be an object"),
+                                            ({"sha256": "abc"}, "'sha256' must map file names"),
+                                            ({"output": 5}, "'output' must be a string")])
+def test_params_export_refuses_an_edited_meta_as_compensate_does(tiny_bundle, tmp_path, fields, reason):
+    """export.py format=px4|ardupilot read the bundle without the schema: ``model: null`` was an AttributeError,
+    a damaged ``sha256`` or ``output`` was exported without a word."""
+    from gyronet.deploy.params import export_params
+
+    edited = _edited(tiny_bundle, tmp_path, **fields)
+    for stack in ("px4", "ardupilot"):
+        with pytest.raises(BundleError, match=reason):
+            export_params(edited, tmp_path / f"{stack}.params", stack)
+    export_params(tiny_bundle, tmp_path / "good.params", "px4")  # the unedited bundle still exports
