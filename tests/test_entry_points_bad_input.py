@@ -50,3 +50,14 @@ def test_params_export_refuses_an_edited_meta_as_compensate_does(tiny_bundle, tm
         with pytest.raises(BundleError, match=reason):
             export_params(edited, tmp_path / f"{stack}.params", stack)
     export_params(tiny_bundle, tmp_path / "good.params", "px4")  # the unedited bundle still exports
+
+
+def test_format_rosbag_on_a_file_that_is_no_bag_is_one_line(tmp_path):
+    """convert.py format=rosbag (and allan.py on such a path) on a CSV: rosbags' AnyReaderError escaped as a traceback."""
+    from gyronet.errors import RecordingError
+    from gyronet.recordings.importers.rosbag import import_rosbag
+
+    path = tmp_path / "F.csv"
+    path.write_text("time_s,temp_c,gyro_x_dps,gyro_y_dps,gyro_z_dps\n0,20,0,0,0\n0.5,20,0,0,0\n")
+    with pytest.raises(RecordingError, match=r"F.csv: unreadable ROS bag \(AnyReaderError"):
+        import_rosbag(path)

@@ -133,8 +133,8 @@ class _open:
         if not self.path.exists():
             raise RecordingError(f"{self.path}: no such file or folder")
         # ROS 2 sqlite bags before Iron carry no message definitions; Imu and Temperature never changed
-        self.reader = AnyReader([self.path], default_typestore=get_typestore(Stores.ROS2_HUMBLE))
-        try:
+        try:  # the constructor refuses a file that is no bag at all (format=rosbag on a CSV)
+            self.reader = AnyReader([self.path], default_typestore=get_typestore(Stores.ROS2_HUMBLE))
             self.reader.open()
         except Exception as err:  # noqa: BLE001 -- rosbags raises many kinds for a damaged bag
             raise RecordingError(f"{self.path}: unreadable ROS bag ({type(err).__name__}: {_first_line(err)})") from None
