@@ -61,3 +61,18 @@ def test_format_rosbag_on_a_file_that_is_no_bag_is_one_line(tmp_path):
     path.write_text("time_s,temp_c,gyro_x_dps,gyro_y_dps,gyro_z_dps\n0,20,0,0,0\n0.5,20,0,0,0\n")
     with pytest.raises(RecordingError, match=r"F.csv: unreadable ROS bag \(AnyReaderError"):
         import_rosbag(path)
+
+
+@pytest.mark.parametrize("per_decade", [0, -3])
+def test_allan_refuses_fewer_than_one_tau_per_decade(per_decade):
+    """allan.py per_decade=0 wrote a one-point curve with every figure n/a and exit 0; -3 was a numpy traceback."""
+    import numpy as np
+
+    from gyronet.allan import allan_report
+    from gyronet.errors import GyronetError
+
+    time_s = np.arange(2000) / 10.0
+    rate = np.random.default_rng(0).normal(0.0, 0.1, (2000, 3))
+    with pytest.raises(GyronetError, match=f"per_decade must be .* at least 1, got {per_decade}"):
+        allan_report(time_s, rate, per_decade=per_decade)
+    assert len(allan_report(time_s, rate, per_decade=1)["x"]["taus_s"]) > 1

@@ -60,6 +60,9 @@ def allan_report(time_s: np.ndarray, rate_dps: np.ndarray, fs_hz: float | None =
     GyronetError
         When the (longest continuous part of the) record is too short for an Allan curve.
     """
+    if isinstance(per_decade, bool) or not isinstance(per_decade, (int, np.integer)) or per_decade < 1:
+        # 0 gave a one-point curve and every figure n/a without a word, a negative number a numpy traceback
+        raise GyronetError(f"per_decade must be a whole number of taus per decade, at least 1, got {per_decade!r}")
     time_s = np.asarray(time_s, dtype=np.float64)
     rate = np.asarray(rate_dps, dtype=np.float64)
     if len(time_s) < 3:
