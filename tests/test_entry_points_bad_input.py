@@ -76,3 +76,13 @@ def test_allan_refuses_fewer_than_one_tau_per_decade(per_decade):
     with pytest.raises(GyronetError, match=f"per_decade must be .* at least 1, got {per_decade}"):
         allan_report(time_s, rate, per_decade=per_decade)
     assert len(allan_report(time_s, rate, per_decade=1)["x"]["taus_s"]) > 1
+
+
+@pytest.mark.parametrize("static", [[float("nan"), 0.0, 0.0], [0.0, float("inf"), 0.0]])
+def test_a_start_up_offset_refuses_a_static_rate_that_is_not_finite(static):
+    """compensate.py startup.static_rate_dps=[nan,0,0] wrote NaN for every x output after the window, exit 0."""
+    from gyronet.bundle.startup import StartupOffset
+    from gyronet.errors import GyronetError
+
+    with pytest.raises(GyronetError, match="startup.static_rate_dps needs 3 finite numbers"):
+        StartupOffset(60.0, static_rate_dps=static)

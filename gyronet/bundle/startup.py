@@ -74,6 +74,9 @@ class StartupOffset:
         except (TypeError, ValueError):
             raise GyronetError(f"startup.static_rate_dps needs 3 numbers (x, y, z, deg/s), got {static_rate_dps!r}") \
                 from None
+        if not np.isfinite(self.static_rate_dps).all():  # a NaN here made every output of its axis NaN, exit 0
+            raise GyronetError(f"startup.static_rate_dps needs 3 finite numbers (x, y, z, deg/s), got "
+                               f"{self.static_rate_dps.tolist()!r}")
         self.n_bins = max(1, int(math.ceil(self.still_s / BIN_S)))
         self.reset()
 
