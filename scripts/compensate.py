@@ -10,7 +10,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))  # scripts/_cli.py, als
 from _cli import command  # noqa: E402
 
 
-@command("compensate", "deploy")
+# a path that is null or a list, startup=5 or resample=maybe (read as true) were a traceback or taken silently
+@command("compensate", "deploy", schemas={"model": str, "input": str, "output": str, "resample": bool, "startup": dict})
 def main(cfg: DictConfig) -> None:
     compensate_file(cfg.model, cfg.input, cfg.output, resample=bool(cfg.get("resample", False)),
                     startup=OmegaConf.to_container(cfg.startup, resolve=True))

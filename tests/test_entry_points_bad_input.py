@@ -86,3 +86,44 @@ def test_a_start_up_offset_refuses_a_static_rate_that_is_not_finite(static):
 
     with pytest.raises(GyronetError, match="startup.static_rate_dps needs 3 finite numbers"):
         StartupOffset(60.0, static_rate_dps=static)
+
+
+# ---------------------------------------------------------------- the scripts' settings, in-process
+
+SCRIPTS = Path(__file__).resolve().parents[1] / "scripts"
+
+
+def _script_error(capsys, script: str, config_dir: str, overrides: list[str]) -> str:
+    """The one line a script's task (as Hydra runs it, settings checked first) prints for ``overrides``, exit 2."""
+    import importlib.util
+    import sys
+
+    from hydra import compose, initialize_config_dir
+
+    sys.path.insert(0, str(SCRIPTS))
+    try:
+        spec = importlib.util.spec_from_file_location(f"_script_{script}", SCRIPTS / f"{script}.py")
+        module = importlib.util.module_from_spec(spec)
+        spec.loader.exec_module(module)
+        with initialize_config_dir(str(SCRIPTS.parent / "conf" / config_dir), version_base="1.3"):
+            cfg = compose(script, overrides=overrides)
+        capsys.readouterr()
+        with pytest.raises(SystemExit) as stop:
+            module.main.__wrapped__(cfg)
+    finally:
+        sys.path.remove(str(SCRIPTS))
+    lines = [line for line in capsys.readouterr().err.splitlines() if line.strip()]
+    assert stop.value.code == 2 and len(lines) == 1 and lines[0].startswith("error: "), lines
+    return lines[0]
+
+
+@pytest.mark.parametrize("override, reason", [
+    ("model=null", "model must be a string, got None"), ("input=[a,b]", "input must be a string"),
+    ("output=null", "output must be a string, got None"), ("startup=5", "startup must be a mapping, got 5"),
+    ("resample=maybe", "resample must be true or false, got 'maybe'")])
+def test_compensate_refuses_settings_of_the_wrong_type(capsys, tmp_path, override, reason):
+    """Paths that are null or a list were a TypeError traceback, startup=5 a ValueError; resample=maybe ran as true."""
+    base = {"model": f"model={tmp_path}/b", "input": f"input={tmp_path}/F.csv", "output": f"output={tmp_path}/O.csv"}
+    base[override.split("=")[0]] = override
+    line = _script_error(capsys, "compensate", "deploy", list(base.values()))
+    assert reason in line
