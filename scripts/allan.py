@@ -56,7 +56,7 @@ def _refuse_rate_change(recording, source) -> None:
                            "the file there and analyse each part")
 
 
-@command("allan", schemas={"per_decade": int, "still_s": float | None})
+@command("allan", schemas={"per_decade": int, "still_s": float | None, "input": str, "output": str})
 def main(cfg: DictConfig) -> None:
     if OmegaConf.is_missing(cfg, "input"):
         raise GyronetError("no recording given: add input=F.csv")

@@ -127,3 +127,11 @@ def test_compensate_refuses_settings_of_the_wrong_type(capsys, tmp_path, overrid
     base[override.split("=")[0]] = override
     line = _script_error(capsys, "compensate", "deploy", list(base.values()))
     assert reason in line
+
+
+@pytest.mark.parametrize("override", ["input=null", "output=null"])
+def test_allan_refuses_a_path_that_is_null(capsys, tmp_path, override):
+    """allan.py input=null or output=null was a TypeError traceback."""
+    base = {"input": f"input={tmp_path}/F.csv", "output": f"output={tmp_path}/A.json"}
+    base[override.split("=")[0]] = override
+    assert f"{override.split('=')[0]} must be a string, got None" in _script_error(capsys, "allan", "", list(base.values()))
