@@ -7,6 +7,7 @@ from omegaconf import DictConfig, OmegaConf
 
 from gyronet.analysis.table import PAPER_TABLE_1, held_out_paths, runs_to_markdown, table_rows, table_runs, to_markdown
 from gyronet.atomic import write_json, write_text
+from gyronet.errors import ConfigError
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # scripts/_cli.py, also when this file is run by path
 from _cli import command  # noqa: E402
@@ -14,10 +15,18 @@ from _cli import command  # noqa: E402
 log = logging.getLogger(__name__)
 
 
-@command("table", "deploy", schemas={"px4.firmware_schedule": bool})
+# a number that is text, or a path list given as one path, were a traceback or a misleading line (data.paths=F.csv
+# was read letter by letter)
+@command("table", "deploy", schemas={"px4.firmware_schedule": bool, "score_from_s": float, "startup": dict,
+                                     "startup.still_s": float | None, "startup.motion_dps": float,
+                                     "startup.static_rate_dps": list | None, "input": str | None,
+                                     "data.path": str | None, "data.paths": list | None, "bundles": dict})
 def main(cfg: DictConfig) -> None:
     paths = held_out_paths(cfg.get("input"), cfg.data.get("path"), cfg.data.get("paths"))
     bundles = OmegaConf.to_container(cfg.bundles)
+    for name, folder in bundles.items():
+        if not isinstance(folder, str):
+            raise ConfigError(f"bundles.{name} must be a bundle folder, got {folder!r}")
     options = {"startup": OmegaConf.to_container(cfg.startup, resolve=True), "score_from_s": float(cfg.score_from_s),
                "px4_firmware_schedule": bool(cfg.px4.firmware_schedule)}
     if len(paths) == 1:

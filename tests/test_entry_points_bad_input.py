@@ -135,3 +135,18 @@ def test_allan_refuses_a_path_that_is_null(capsys, tmp_path, override):
     base = {"input": f"input={tmp_path}/F.csv", "output": f"output={tmp_path}/A.json"}
     base[override.split("=")[0]] = override
     assert f"{override.split('=')[0]} must be a string, got None" in _script_error(capsys, "allan", "", list(base.values()))
+
+
+@pytest.mark.parametrize("override, reason", [
+    ("score_from_s=abc", "score_from_s must be a number, got 'abc'"),
+    ("startup.still_s=abc", "startup.still_s must be a number or null, got 'abc'"),
+    ("+bundles={A: 5}", "bundles.A must be a bundle folder, got 5"),
+    ("data.paths=F.csv", "data.paths must be a list or null, got 'F.csv'")])
+def test_table_refuses_settings_of_the_wrong_type(capsys, tmp_path, override, reason):
+    """score_from_s=abc and startup.still_s=abc were ValueError tracebacks, a bundle given as a number a TypeError;
+    data.paths=F.csv was read letter by letter ("two runs share a name (, t, m, p, ...)")."""
+    base = [f"input={tmp_path}/F.csv", f"output={tmp_path}/T.md"]
+    if override.startswith("data.paths"):
+        base = base[1:]
+    line = _script_error(capsys, "table", "deploy", [*base, override])
+    assert reason in line
