@@ -47,6 +47,9 @@ def atomic_output(path: str | os.PathLike) -> Iterator[Path]:
     other exceptions pass through unchanged.
     """
     path = Path(path)
+    if path.name in ("", ".", ".."):  # output= or output=.: the rename onto a folder failed as "Device or resource
+        # busy", naming the temporary file
+        raise _user_error(path, OSError(errno.EISDIR, "it is a folder"))
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         fd, name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".part", dir=path.parent)

@@ -150,3 +150,15 @@ def test_table_refuses_settings_of_the_wrong_type(capsys, tmp_path, override, re
         base = base[1:]
     line = _script_error(capsys, "table", "deploy", [*base, override])
     assert reason in line
+
+
+@pytest.mark.parametrize("name", ["", ".", ".."])
+def test_an_output_path_that_names_a_folder_is_one_line_naming_it(tmp_path, monkeypatch, name):
+    """compensate.py, allan.py, convert.py, table.py with output= (or output=.): "<cwd>/..x1y2.part: Device or
+    resource busy", a line naming a temporary file instead of the output and its problem."""
+    from gyronet.atomic import OutputError, write_text
+
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(OutputError, match=r"cannot write \(it is a folder\)"):
+        write_text(name, "x")
+    assert list(tmp_path.iterdir()) == []
