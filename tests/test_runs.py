@@ -440,3 +440,12 @@ def test_a_val_fraction_no_split_gives_says_what_is_held_out(paper_csv, caplog, 
     assert "val_fraction" not in caplog.text
     with pytest.raises(GyronetError, match=r"data.val_fraction must be in \(0, 1\)"):
         training_data(path=str(paper_csv), val_fraction=1.5)
+
+
+@pytest.mark.parametrize("option, said", [({"n_blocks": 0}, "no span to validate on"),
+                                          ({"n_blocks": 2}, "no span to validate on"),
+                                          ({"n_blocks": 1, "val_fold": 0}, "no span to train on")])
+def test_n_blocks_that_leave_nothing_to_validate_or_train_on_are_one_line(tmp_path, option, said):
+    """n_blocks=0 was refused as "too short to train on", of a recording long enough (from the entry-point fuzz)."""
+    with pytest.raises(GyronetError, match=f"data.n_blocks=.*leaves {said}"):
+        training_data(path=str(tmp_path / "F.csv"), **option)  # refused before the file is read

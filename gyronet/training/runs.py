@@ -8,8 +8,7 @@ the only honest answer to "does it transfer to another thermal history". Optiona
 per run and axis (``RunOffsets``) is fitted beside the model, as a nuisance parameter, so the
 temperature model learns only what the runs share. A model with ``select_capacity`` gets each
 axis's capacity from every fold's held-out run (``gyronet.training.capacity``): what repeats from run to run.
-A model with ``validate_init`` gets every start, mixed per axis by the held-out runs
-(``gyronet.training.run_starts``).
+A model with ``validate_init`` gets every start, mixed per axis by the held-out runs (``.run_starts``).
 """
 from __future__ import annotations
 
@@ -108,12 +107,14 @@ class RunsData(TrainingData):
 
 
 def _say_held_out_share(val_fraction: float, n_blocks: int, val_fold: int | None) -> None:
-    """Refuse a share no split gives; say the share held out when every k-th span is not ``val_fraction``."""
-    if not (0.0 < val_fraction < 1.0 and n_blocks >= 2):
-        raise ConfigError(f"data.val_fraction must be in (0, 1) and data.n_blocks at least 2, got {val_fraction} "
-                          f"and {n_blocks}")
+    """Refuse a split that holds out nothing or everything; say the share held out when it is not ``val_fraction``."""
+    if not 0.0 < val_fraction < 1.0:
+        raise ConfigError(f"data.val_fraction must be in (0, 1), got {val_fraction}")
     k = fold_count(val_fraction)
     held = sum(1 for span in range(n_blocks) if span % k == (k // 2 if val_fold is None else val_fold % k))
+    if not 0 < held < n_blocks:  # was refused as "too short to train on", which the recording was not
+        raise ConfigError(f"data.n_blocks={n_blocks} with data.val_fraction={val_fraction:g} (one span in {k} held out) "
+                          f"leaves {'no span to validate on' if held == 0 else 'no span to train on'}")
     if abs(held / n_blocks - val_fraction) > 0.01:
         log.warning("data.val_fraction=%g holds out one span in %d of data.n_blocks=%d: %d spans, %.0f %% of the "
                     "record", val_fraction, k, n_blocks, held, 100.0 * held / n_blocks)
