@@ -1,6 +1,7 @@
 """Train a drift compensator: python scripts/train.py data.path=F.csv [model=rbf|poly3|lsq] [-m hydra/sweeper=ga]."""
 import json
 import logging
+import math
 import sys
 from pathlib import Path
 
@@ -9,6 +10,7 @@ from hydra.types import RunMode
 from hydra.utils import instantiate
 from omegaconf import DictConfig, OmegaConf
 
+from gyronet.errors import ConfigError
 from gyronet.training.axis_lag import with_axis_lags
 from gyronet.training.pipeline import train_run
 from gyronet.figures.tb import make_writer
@@ -22,6 +24,8 @@ log = logging.getLogger(__name__)
 # a bad input is one line and exit 2; in a sweep it raises, and the sweeper scores the job inf
 @command("train", schemas={"train": "gyronet.training.train.fit", "seed": int, "eval.paths": list, "eval.block_s": float})
 def main(cfg: DictConfig) -> float:
+    if not (cfg.eval.block_s > 0 and math.isfinite(cfg.eval.block_s)):  # -5 reported a "-5 s residual RMS"
+        raise ConfigError(f"eval.block_s must be > 0 s (the held-out residual's averaging block), got {cfg.eval.block_s}")
     data = instantiate(cfg.data)
     model = instantiate(cfg.model, n_inputs=data.n_features)
     data, model = with_axis_lags(data, lambda n, columns: instantiate(cfg.model, n_inputs=n, axis_columns=columns),

@@ -162,3 +162,11 @@ def test_an_output_path_that_names_a_folder_is_one_line_naming_it(tmp_path, monk
     with pytest.raises(OutputError, match=r"cannot write \(it is a folder\)"):
         write_text(name, "x")
     assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("block_s", [0, -5])
+def test_train_refuses_a_held_out_block_that_is_not_positive(capsys, tmp_path, block_s):
+    """train.py eval.block_s=-5 reported a "-5 s residual RMS" (per sample) into the log and report.json, exit 0."""
+    line = _script_error(capsys, "train", "", [f"data.path={tmp_path}/F.csv", f"eval.block_s={block_s}",
+                                               f"eval.paths=[{tmp_path}/G.csv]"])
+    assert f"eval.block_s must be > 0 s (the held-out residual's averaging block), got {block_s}" in line
