@@ -90,6 +90,34 @@ def test_compensate_file_checks_the_rate(bundle, cycles, tmp_path):
     assert len(written) == len(cycles[10.0].recording["time_s"])
 
 
+def test_a_file_in_kelvin_is_refused_and_one_glitch_in_a_hundred_is_not(bundle, cycles, tmp_path):
+    """Kelvin gave every row bad_input and a number from the filters' prior, exit 0; training refused it."""
+    from gyronet.errors import RecordingError
+
+    kelvin, glitched = tmp_path / "kelvin.csv", tmp_path / "glitched.csv"
+    write_simulation(cycles[2.0], kelvin)
+    lines = kelvin.read_text().splitlines(keepends=True)
+    header = next(i for i, line in enumerate(lines) if not line.startswith("#"))
+    assert lines[header].split(",")[1] == "temp_c"
+
+    def with_temp(rows, temp):
+        out = list(lines)
+        for i in rows:
+            cells = out[i].split(",")
+            cells[1] = temp(float(cells[1]))
+            out[i] = ",".join(cells)
+        return "".join(out)
+
+    kelvin.write_text(with_temp(range(header + 1, len(lines)), lambda c: repr(c + 273.15)))
+    with pytest.raises(RecordingError, match=r"temp_c = 2\d\d\.\d+ degC is outside any sensor's range"):
+        compensate_file(bundle, kelvin, tmp_path / "o.csv")
+    assert not (tmp_path / "o.csv").exists()
+    glitches = range(header + 6, len(lines), 100)  # one row in a hundred: glitches the guard leaves out, flagged
+    glitched.write_text(with_temp(glitches, lambda c: "500"))
+    counts = compensate_file(bundle, glitched, tmp_path / "o.csv")
+    assert counts["n_bad_input"] == len(glitches)
+
+
 def _run_compensate(*args: str) -> subprocess.CompletedProcess:
     return subprocess.run([sys.executable, "scripts/compensate.py", *args], cwd=ROOT, capture_output=True, text=True)
 

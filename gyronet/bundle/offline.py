@@ -10,6 +10,7 @@ import numpy as np
 from gyronet.bundle.compensator import Compensated, Compensator
 from gyronet.bundle.startup import StartupMotionError
 from gyronet.recordings.data import AXES, GYRO_COLUMNS, Recording, load_recording, write_recording
+from gyronet.recordings.guard import check_temperatures
 from gyronet.atomic import atomic_output, refuse_overwriting
 from gyronet.recordings.fastcsv import write_csv
 
@@ -120,6 +121,7 @@ def compensate_file(bundle_dir: str | Path, input_path: str | Path, output_path:
     compensator.use_startup(**dict(startup or {}))
     log_what_it_rests_on(compensator)
     recording = load_recording(input_path)
+    check_temperatures(recording)  # Kelvin or a wrong column: refused, not every row flagged and compensated
     try:
         out = compensate_as_deployed(compensator, recording, resample)
     except StartupMotionError as err:  # the line names the file, as every refusal of one does

@@ -27,6 +27,8 @@ import logging
 
 import numpy as np
 
+from gyronet.errors import RecordingError
+
 log = logging.getLogger(__name__)
 
 SENSOR_RANGE_C = (-80.0, 200.0)
@@ -35,6 +37,17 @@ JUMP_C = 1.5
 CONFIRM_SAMPLES = 5
 CONFIRM_S = 2.0
 GYRO_RANGE_DPS = 1e4  # beyond every MEMS gyro's full scale (+-2000 deg/s typical, 1e4 with margin)
+
+
+def check_temperatures(recording) -> None:
+    """Refuse a file whose temperature no sensor reads on more than 1 % of its rows (Kelvin, a wrong column),
+    naming the first line; fewer are glitches this guard leaves out."""
+    temp_c, (low, high) = recording.columns["temp_c"], SENSOR_RANGE_C
+    bad = np.flatnonzero((temp_c < low) | (temp_c > high))
+    if bad.size > 0.01 * len(temp_c):
+        raise RecordingError(f"{recording.path}: {recording.line_of(int(bad[0]))}: temp_c = {float(temp_c[bad[0]]):.6g}"
+                             f" degC is outside any sensor's range ({low:g} .. {high:g}); {bad.size} such sample(s): "
+                             "fix or remove those lines")
 
 
 def bad_gyro(gyro_dps: np.ndarray) -> np.ndarray:

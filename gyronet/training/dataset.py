@@ -21,12 +21,12 @@ from gyronet.errors import GyronetError, RecordingError
 from gyronet.model.features import PAPER_FEATURES, FeatureExtractor, required_columns
 from gyronet.recordings.data import (AXES, GYRO_COLUMNS, Recording, block_means, gap_blocks, load_recording,
                                      split_by_time, time_blocks, warn_timing)
+from gyronet.recordings.guard import check_temperatures
 
 log = logging.getLogger(__name__)
 
 # beyond these a sample is no reading of a real sensor: a corrupt line, not data to fit
 RATE_LIMIT_DPS = 1.0e4  # the widest MEMS gyro ranges are +-4000 deg/s
-TEMP_LIMITS_C = (-80.0, 200.0)
 # a record must vary this much in temperature to fit a drift on it, degC
 MIN_TEMP_SPAN_C = 1.0
 # and give at least this many averaging blocks to fit on and to validate on
@@ -94,15 +94,15 @@ def clear_caches() -> None:
 def check_physical(recording: Recording) -> None:
     """Refuse a recording with a rate no real sensor gives (a corrupt line), or a temperature no sensor reads on
     more than 1 % of its rows (Kelvin, a wrong column), naming the line; fewer are glitches the guard leaves out."""
-    limits = {c: (-RATE_LIMIT_DPS, RATE_LIMIT_DPS, "deg/s") for c in GYRO_COLUMNS}
-    limits["temp_c"] = (*TEMP_LIMITS_C, "degC")
-    for name, (low, high, unit) in limits.items():
+    for name in GYRO_COLUMNS:
         values = recording.columns[name]
-        bad = np.flatnonzero((values < low) | (values > high))
-        if bad.size and (name != "temp_c" or bad.size > 0.01 * len(values)):
+        bad = np.flatnonzero(np.abs(values) > RATE_LIMIT_DPS)
+        if bad.size:
             raise RecordingError(f"{recording.path}: {recording.line_of(int(bad[0]))}: {name} = "
-                                 f"{float(values[bad[0]]):.6g} {unit} is outside any sensor's range "
-                                 f"({low:g} .. {high:g}); {bad.size} such sample(s): fix or remove those lines")
+                                 f"{float(values[bad[0]]):.6g} deg/s is outside any sensor's range "
+                                 f"({-RATE_LIMIT_DPS:g} .. {RATE_LIMIT_DPS:g}); {bad.size} such sample(s): fix or "
+                                 "remove those lines")
+    check_temperatures(recording)
 
 
 def check_features_present(recording: Recording, specs: Sequence[Mapping[str, Any]]) -> None:
