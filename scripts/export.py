@@ -21,6 +21,8 @@ PARAMS_ONLY = ("vehicle_id", "component_id", "grid_points", "temp_rate_c_per_s",
                             "prefix": str},
          required=("model", "output"))
 def main(cfg: DictConfig) -> None:
+    if not str(cfg.output).strip():  # format=c wrote its files into the working directory
+        raise ConfigError("output is empty: give output=F.params, or a folder for format=c (output=c/)")
     if cfg.format not in FORMATS:
         raise ConfigError(f"format must be one of {', '.join(FORMATS)}, got {cfg.format!r}")
     if cfg.get("fit") not in FITS:  # before the heavy imports, as gyronet.deploy.params.FORMS

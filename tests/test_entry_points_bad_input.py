@@ -170,3 +170,10 @@ def test_train_refuses_a_held_out_block_that_is_not_positive(capsys, tmp_path, b
     line = _script_error(capsys, "train", "", [f"data.path={tmp_path}/F.csv", f"eval.block_s={block_s}",
                                                f"eval.paths=[{tmp_path}/G.csv]"])
     assert f"eval.block_s must be > 0 s (the held-out residual's averaging block), got {block_s}" in line
+
+
+@pytest.mark.parametrize("output", ["", " "])
+def test_export_refuses_an_empty_output(capsys, tmp_path, output):
+    """export.py format=c output= wrote gyronet_compensator.h and .c into the working directory, exit 0."""
+    line = _script_error(capsys, "export", "deploy", [f"model={tmp_path}/D", "format=c", f"output='{output}'"])
+    assert "output is empty" in line
