@@ -511,6 +511,9 @@ BAD_CONFIGS = {
     "no_shifts": (["diagnose.n_shifts=0"], "diagnose.n_shifts must be at least 1"),
     "span_zero": (["diagnose.span_s=0"], "diagnose.span_s must be positive"),
     "lags_text": (["diagnose.candidates.lag_tau_s=abc"], "diagnose.candidates.lag_tau_s must be a list"),
+    # a lag of -60 s was left out of the grid without a word
+    "lag_negative": (["diagnose.candidates.lag_tau_s=[-60,600]"],
+                     "diagnose.candidates.lag_tau_s must hold positive values, got -60"),
     "extra_kind": (["diagnose.candidates.extra=[{kind: nope}]"], "unknown feature kind 'nope'"),
     "features_kind": (["data.features=[{kind: nope}]"], "unknown feature kind 'nope'"),
     "block_text": (["data.block_s=abc"], "data.block_s must be a number"),

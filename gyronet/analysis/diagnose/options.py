@@ -89,6 +89,10 @@ class DiagnoseOptions:
         if not self.candidates.max_tau_fraction > 0.0:
             raise GyronetError("diagnose.candidates.max_tau_fraction must be positive, got "
                                f"{self.candidates.max_tau_fraction}")
+        for name in ("lag_tau_s", "hysteresis_width_c", "time_tau_s"):  # a value <= 0 was dropped without a word
+            bad = [v for v in getattr(self.candidates, name) if not float(v) > 0.0]
+            if bad:
+                raise GyronetError(f"diagnose.candidates.{name} must hold positive values, got {bad[0]}")
         check_feature_specs(self.candidates.extra, "diagnose.candidates.extra")
 
 
