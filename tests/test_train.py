@@ -277,3 +277,25 @@ def test_a_bar_calibrated_on_data_val_path_says_so(tmp_path, paper_csv, cycle_cs
     console = []
     _train(tmp_path, f"data.path={paper_csv}", f"data.val_path={cycle_csv}", "model=poly3", console=console)
     assert f"error bar: calibrated on the validation recording {cycle_csv};" in console[0]
+
+
+def test_several_gzip_held_out_recordings_are_tagged_by_run_name(paper_csv, cycle_csv, tmp_path):
+    """eval_cycle.csv/... kept '.csv' of cycle.csv.gz in its metrics' and TensorBoard's names."""
+    import gzip
+    import shutil
+
+    from gyronet.model.baselines import TempPolynomial
+    from gyronet.training.dataset import DriftData
+    from gyronet.training.pipeline import train_run
+
+    zipped = []
+    for source in (paper_csv, cycle_csv):
+        zipped.append(tmp_path / f"{source.stem}_held.csv.gz")
+        with open(source, "rb") as plain, gzip.open(zipped[-1], "wb") as out:
+            shutil.copyfileobj(plain, out)
+    data = DriftData(str(paper_csv))
+    train_run(data, TempPolynomial(data.n_features), None, tmp_path / "run", {"progress": False},
+              eval_paths=[str(p) for p in zipped])
+    metrics = json.loads((tmp_path / "run" / "report.json").read_text())["metrics"]
+    assert any(k.startswith("eval_cycle_held/") for k in metrics)
+    assert not any(".csv" in k for k in metrics)

@@ -207,7 +207,7 @@ def train_run(data: DriftData, model: torch.nn.Module, optim: Callable | None, o
     if folds is not None:
         report.update(train_paths=data.paths, folds=folds)
     for path, result in evaluations.items():
-        metrics.update(_eval_metrics(result, prefix="eval" if len(evaluations) == 1 else f"eval_{Path(path).stem}"))
+        metrics.update(_eval_metrics(result, prefix="eval" if len(evaluations) == 1 else f"eval_{run_name(path)}"))
     if writer is not None:
         _log_run(writer, metrics, evaluations, hparams or model_info(model))
     write_json(out_dir / "report.json", report, indent=1)  # strict JSON: a figure with no value is null
@@ -241,7 +241,7 @@ def _log_run(writer: Any, metrics: Mapping[str, float], evaluations: Mapping[str
 
     tb.log_scalars(writer, {k: v for k, v in metrics.items() if np.isfinite(v)})
     for path, result in evaluations.items():
-        name = Path(path).stem
+        name = run_name(path)
         arrays = result["_arrays"]
         tb.log_figure(writer, f"eval/{name}/allan", plot_allan(
             {stage: result["allan"][stage] for stage in result["allan"]}, title=f"Allan deviation: {name}"))
