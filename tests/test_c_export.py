@@ -5,6 +5,7 @@ by ``gyronet/deploy/c/csv_driver.c`` over a recording with lost samples, a confi
 step, out-of-range temperatures and NaN / impossible inputs; its output must match
 ``Compensator.process`` (what compensate.py runs) to 1e-4 deg/s and its flags exactly.
 """
+import json
 import platform
 import shutil
 import subprocess
@@ -302,6 +303,16 @@ def test_a_column_name_that_would_end_a_c_comment_still_compiles(aux_csv, tmp_pa
                     features=[{"kind": "temp"}, {"kind": "column", "source": "sup*/ply_v"}])
     _build(bundle, tmp_path)
     assert "sup* /ply_v" in (tmp_path / "c" / "gyronet_compensator.h").read_text()
+
+
+def test_a_lagged_bundles_px4_export_clamps_at_its_trained_range(bundles, tmp_path):
+    """The lag slots' clamp is flat only to rounding: the edge search took 152 degC for 61.7, and fitted the cubic there."""
+    from gyronet.deploy.params import export_params, px4_cubic, read_params
+
+    export_params(bundles["axis_lag"], tmp_path / "lagged.params", "px4")
+    cubic = px4_cubic(read_params(tmp_path / "lagged.params"))
+    low, high = json.loads((bundles["axis_lag"] / "meta.json").read_text())["temp_range_c"]
+    assert low - 1e-3 < cubic.temp_min_c < low + 0.5 and high - 0.5 < cubic.temp_max_c < high + 1e-3
 
 
 @needs_cc

@@ -211,3 +211,19 @@ def test_an_option_of_the_other_kind_of_export_is_refused_not_ignored(tmp_path):
         failed = run_export(tmp_path, f"model={tmp_path}", *args, f"output={tmp_path}/x.params")
         assert failed.returncode == 2 and message in failed.stderr, failed.stderr
         assert len(failed.stderr.strip().splitlines()) == 1
+
+
+def test_a_curve_flat_to_rounding_beyond_its_edge_is_clamped_there():
+    """A lag slot's clamp leaves 1e-16 of rounding beyond the edge: the exact test took 152 degC for 61.7 degC."""
+    from gyronet.deploy.bundle_curve import clamp_range
+
+    low, high = -38.4, 61.7
+    span = high - low
+
+    def curve(temp_c):
+        t = np.asarray(temp_c, dtype=np.float64)
+        ripple = np.where((t > high + 1.0) & (t < high + span - 2.0), 2e-16, 0.0)  # rounding, not at the probes
+        return np.column_stack([0.5 + 0.01 * np.clip(t, low, high) + ripple] * 3)
+
+    found_low, found_high = clamp_range(curve, low - 5.0, high + 5.0)
+    assert found_low == pytest.approx(low, abs=1e-6) and found_high == pytest.approx(high, abs=1e-6)

@@ -14,6 +14,12 @@ from gyronet.errors import BundleError
 log = logging.getLogger(__name__)
 
 _STEADY = {"temp", "rate", "product", "lag", "power"}  # kinds with a value at steady temperature
+# beyond its edge a clamped curve is flat to rounding (a lag slot's copy moves to the edge in its own units)
+FLAT_DPS = 1e-9
+
+
+def _flat(a: np.ndarray, b: np.ndarray) -> bool:
+    return bool(np.all(np.abs(a - b) <= FLAT_DPS))
 
 
 def steady_features(meta: dict[str, Any], temp_c: np.ndarray) -> np.ndarray:
@@ -49,7 +55,7 @@ def _clamp_edge(curve: Callable[[float], np.ndarray], flat_c: float, inside_c: f
     flat_value = curve(flat_c)
     for _ in range(80):
         middle = 0.5 * (flat_c + inside_c)
-        if np.array_equal(curve(middle), flat_value):
+        if _flat(curve(middle), flat_value):
             flat_c = middle
         else:
             inside_c = middle
@@ -61,7 +67,7 @@ def clamp_range(curve: Callable[[float], np.ndarray], low_c: float, high_c: floa
     span = high_c - low_c
     edges = []
     for far, near, inside in ((low_c - span, low_c - span + 1.0, high_c), (high_c + span, high_c + span - 1.0, low_c)):
-        if np.array_equal(curve(far), curve(near)) and not np.array_equal(curve(far), curve(inside)):
+        if _flat(curve(far), curve(near)) and not _flat(curve(far), curve(inside)):
             edges.append(_clamp_edge(curve, far, inside))
         else:
             edges.append(low_c if far < low_c else high_c)
