@@ -21,6 +21,7 @@ from typing import Callable, Sequence
 import numpy as np
 import pandas as pd
 
+from gyronet.recordings.csvtable.cells import MISSING, NA_TOKENS, parse_numbers
 from gyronet.recordings.csvtable.shape import check_shape, scan_bytes, scan_quoted
 from gyronet.recordings.csvtable.tail import drop_cut_last_line
 from gyronet.recordings.csvtable.text import check_header, read_preamble, read_source, show, sniff, split_header, to_utf8
@@ -28,10 +29,6 @@ from gyronet.errors import RecordingError
 
 log = logging.getLogger(__name__)
 
-# what both parsers read as NaN (pandas' defaults, passed explicitly so the text path agrees)
-NA_TOKENS = ("", "#N/A", "#N/A N/A", "#NA", "-1.#IND", "-1.#QNAN", "-NaN", "-nan", "1.#IND", "1.#QNAN",
-             "<NA>", "N/A", "NA", "NULL", "NaN", "None", "n/a", "nan", "null")
-MISSING = "missing value (an empty cell, NaN, NA, n/a, null or the like)"
 # pandas < 3 parses floats to within an ulp unless asked for round trips; 3 always round-trips
 _FLOAT_OPTIONS = {"float_precision": "round_trip"} if int(pd.__version__.split(".")[0]) < 3 else {}
 
@@ -45,18 +42,6 @@ class Table:
     lines: np.ndarray  # file line number of each row, 1-based
     dropped: dict[str, str] = field(default_factory=dict)  # auxiliary column -> why it was dropped
     cut_rows: int = 0  # an unterminated last line cut short, dropped with a warning (0 or 1)
-
-
-def _numbers(cells: Sequence[str], decimal: str) -> tuple[np.ndarray, np.ndarray]:
-    """Text cells -> float64 and a mask of the cells that are not numbers (NA spellings give NaN)."""
-    text = pd.Series(cells, dtype=object).str.strip(" \t")
-    missing = text.isin(NA_TOKENS).to_numpy()
-    wrong = np.zeros(len(text), dtype=bool)
-    if decimal != ".":
-        wrong = text.str.contains(".", regex=False).to_numpy(dtype=bool)
-        text = text.str.replace(decimal, ".", regex=False)
-    values = pd.to_numeric(text, errors="coerce").to_numpy(dtype=np.float64)
-    return values, wrong | (np.isnan(values) & ~missing)
 
 
 def _read_fast(body: bytes, delimiter: str, decimal: str, usecols: int | None = None,
@@ -118,7 +103,7 @@ def parse_table(path: Path, required: Sequence[str], delimiter: str | None = ","
         values = {}
         for i, n in enumerate(names):
             if frame[i].dtype == object:  # an auxiliary column read as text
-                values[n], wrong[n] = _numbers(frame[i].fillna(""), decimal)
+                values[n], wrong[n] = parse_numbers(frame[i].fillna(""), decimal)
             else:
                 values[n] = frame[i].to_numpy(dtype=np.float64)
         numbers = header_line + 1 + np.arange(len(frame))
@@ -142,7 +127,7 @@ def parse_table(path: Path, required: Sequence[str], delimiter: str | None = ","
         values = {n: frame[i].to_numpy(dtype=np.float64) for i, n in enumerate(names)}
     else:  # the text path: slower, and names the first cell that is not a number
         texts = list(zip(*(lines.cells_of(int(i))[:len(names)] for i in rows)))
-        parsed = {n: _numbers(t, decimal) for n, t in zip(names, texts)}
+        parsed = {n: parse_numbers(t, decimal) for n, t in zip(names, texts)}
         values = {n: v for n, (v, _) in parsed.items()}
         wrong = {n: w for n, (_, w) in parsed.items()}
     numbers = lines.numbers[rows]
