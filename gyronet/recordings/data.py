@@ -46,6 +46,7 @@ class Recording:
     lines: np.ndarray | None = None  # the file line of each row, when loaded from a CSV
     dropped: dict[str, str] = field(default_factory=dict)  # auxiliary columns not loaded, and why
     cut_rows: int = 0  # an unterminated last line cut short: dropped with a warning (gyronet.recordings.csvtable.tail)
+    dropped_lines: dict[str, int] = field(default_factory=dict)  # left out by bad_lines="drop", by reason
 
     def __len__(self) -> int:
         return len(self.time_s)
@@ -112,7 +113,7 @@ class Recording:
 
 
 def load_recording(path: str | os.PathLike, required: Sequence[str] = REQUIRED_COLUMNS, *,
-                   delimiter: str | None = ",", decimal: str | None = ".") -> Recording:
+                   delimiter: str | None = ",", decimal: str | None = ".", bad_lines: str = "refuse") -> Recording:
     """Load and validate a recording.
 
     Parameters
@@ -125,6 +126,8 @@ def load_recording(path: str | os.PathLike, required: Sequence[str] = REQUIRED_C
         and named in ``Recording.dropped``.
     delimiter, decimal
         The contract's ``,`` and ``.``; None sniffs them (``;``, tab, decimal commas), for import.
+    bad_lines
+        ``refuse`` a file with a malformed line, or ``drop`` such lines (counted in ``Recording.dropped_lines``).
 
     Returns
     -------
@@ -144,20 +147,12 @@ def load_recording(path: str | os.PathLike, required: Sequence[str] = REQUIRED_C
         raise RecordingError(f"{path}: a folder, not a recording (give a .csv or .csv.gz file in it)")
     if not path.is_file():
         raise RecordingError(f"{path}: no such file")
-    table = parse_table(path, tuple(dict.fromkeys(("time_s", *required))), delimiter, decimal)
-    _check_time(path, table.columns["time_s"], table.lines)
-    recording = Recording(table.columns, table.meta, str(path), table.lines, table.dropped, table.cut_rows)
+    table = parse_table(path, tuple(dict.fromkeys(("time_s", *required))), delimiter, decimal, bad_lines)
+    recording = Recording(table.columns, table.meta, str(path), table.lines, table.dropped, table.cut_rows,
+                          table.dropped_lines)
     if "fs_hz" in recording.meta:
         recording.fs_hz  # noqa: B018 - refuses a declared rate that is not the recording's
     return recording
-
-
-def _check_time(path: Path, time_s: np.ndarray, lines: np.ndarray) -> None:
-    bad = np.flatnonzero(np.diff(time_s) <= 0)
-    if bad.size:
-        row = int(bad[0]) + 1
-        raise RecordingError(f"{path}: line {lines[row]}: time_s {float(time_s[row])!r} does not "
-                             f"increase (previous {float(time_s[row - 1])!r})")
 
 
 def write_recording(path: str | os.PathLike, columns: Mapping[str, Iterable[float]],

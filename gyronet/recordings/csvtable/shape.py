@@ -16,6 +16,7 @@ from typing import Callable
 
 import numpy as np
 
+from gyronet.recordings.csvtable.badlines import bad_line
 from gyronet.recordings.csvtable.text import MAX_COLUMNS, field_limit
 from gyronet.errors import RecordingError
 
@@ -101,7 +102,7 @@ def check_shape(path: Path, lines: _Lines, n_names: int, header_trailing: int) -
                         path, lines.numbers[-1], len(last), n_names)
     wide = np.flatnonzero(cells > MAX_COLUMNS)
     if wide.size:
-        raise RecordingError(f"{path}: line {lines.numbers[wide[0]]}: malformed row: {cells[wide[0]]} cells (a "
+        raise bad_line(path, f"line {lines.numbers[wide[0]]}: malformed row: {cells[wide[0]]} cells (a "
                              f"recording has at most {MAX_COLUMNS})")
     short = np.flatnonzero(keep & (cells < n_names))
     long = np.flatnonzero(keep & (cells > n_names))
@@ -115,13 +116,13 @@ def check_shape(path: Path, lines: _Lines, n_names: int, header_trailing: int) -
         i = min(candidates)
         line = int(lines.numbers[i])
         if cells[i] > n_names and header_trailing:
-            raise RecordingError(f"{path}: line {line}: column {n_names + 1} has a value but no name in the header")
+            raise bad_line(path, f"line {line}: column {n_names + 1} has a value but no name in the header")
         hint = ""
         if cells[i] > n_names and (cells[keep] > n_names).all():
             hint = " (every line has more cells than the header: a column without a name?)"
         elif cells[i] < n_names:
             hint = " (a missing cell)"
-        raise RecordingError(f"{path}: line {line}: malformed row: {cells[i]} cells where the header names "
+        raise bad_line(path, f"line {line}: malformed row: {cells[i]} cells where the header names "
                              f"{n_names} columns{hint}")
     if long.size:
         log.info("%s: %d line(s) end with empty cells beyond the header's %d columns (trailing "

@@ -21,6 +21,7 @@ from typing import Callable, Sequence
 import numpy as np
 import pandas as pd
 
+from gyronet.recordings.csvtable.badlines import bad_line, drop_bad_lines
 from gyronet.recordings.csvtable.cells import MISSING, NA_TOKENS, parse_numbers
 from gyronet.recordings.csvtable.shape import check_shape, scan_bytes, scan_quoted
 from gyronet.recordings.csvtable.tail import drop_cut_last_line
@@ -42,6 +43,7 @@ class Table:
     lines: np.ndarray  # file line number of each row, 1-based
     dropped: dict[str, str] = field(default_factory=dict)  # auxiliary column -> why it was dropped
     cut_rows: int = 0  # an unterminated last line cut short, dropped with a warning (0 or 1)
+    dropped_lines: dict[str, int] = field(default_factory=dict)  # bad_lines=drop: lines left out, by reason
 
 
 def _read_fast(body: bytes, delimiter: str, decimal: str, usecols: int | None = None,
@@ -73,11 +75,12 @@ def _plainly_clean(frame: pd.DataFrame | None, n_names: int) -> bool:
 
 
 def parse_table(path: Path, required: Sequence[str], delimiter: str | None = ",",
-                decimal: str | None = ".") -> Table:
+                decimal: str | None = ".", bad_lines: str = "refuse") -> Table:
     """Read a recording's table; ``delimiter`` or ``decimal`` None: sniffed (``;``, tab, ``1,5``).
 
     Required columns must be numbers in every row. An auxiliary column that is not (text, an empty
-    cell, NaN or inf) is dropped, named in one warning and in ``Table.dropped``.
+    cell, NaN or inf) is dropped, named in one warning and in ``Table.dropped``. ``bad_lines="drop"``
+    leaves out the lines that would be refused one by one, counted in ``Table.dropped_lines``.
     """
     raw = to_utf8(read_source(path), path)
     if delimiter is None or decimal is None:
@@ -87,6 +90,9 @@ def parse_table(path: Path, required: Sequence[str], delimiter: str | None = ","
     names = split_header(header, delimiter)
     trailing = check_header(path, names, required, delimiter, header)
     body, cut_rows = drop_cut_last_line(path, raw[body_start:], delimiter, len(names), header_line + 1)
+    dropped_lines: dict[str, int] = {}
+    if bad_lines == "drop":
+        body, dropped_lines = drop_bad_lines(path, body, names, required, delimiter, decimal, header_line + 1)
     # pandas makes a column of every cell of the first line: a huge one must not get there
     first = re.search(rb"[^ \t\n]", body)
     start = first.start() if first else len(body)
@@ -109,7 +115,7 @@ def parse_table(path: Path, required: Sequence[str], delimiter: str | None = ","
         numbers = header_line + 1 + np.arange(len(frame))
         columns, dropped = _validate(path, names, set(required), values, wrong, numbers,
                                      lambda r: ["" if pd.isna(v) else str(v) for v in frame.iloc[r]])
-        return Table(columns, meta, numbers, dropped, cut_rows)
+        return Table(columns, meta, numbers, dropped, cut_rows, dropped_lines)
     quoted = b'"' in body
     if quoted:
         lines = scan_quoted(path, body.decode("utf-8", "replace"), header_line + 1, delimiter)
@@ -133,13 +139,14 @@ def parse_table(path: Path, required: Sequence[str], delimiter: str | None = ","
     numbers = lines.numbers[rows]
     columns, dropped = _validate(path, names, set(required), values, wrong, numbers,
                                  lambda r: lines.cells_of(int(rows[r])))
-    return Table(columns, meta, numbers, dropped, cut_rows + int(len(keep) > 0 and not keep[-1]))
+    return Table(columns, meta, numbers, dropped, cut_rows + int(len(keep) > 0 and not keep[-1]), dropped_lines)
 
 
 def _validate(path: Path, names: list[str], required: set[str], values: dict[str, np.ndarray],
               wrong: dict[str, np.ndarray], numbers: np.ndarray, cells_of: Callable[[int], list[str]] | None
               ) -> tuple[dict[str, np.ndarray], dict[str, str]]:
-    """Refuse a required column that is not finite numbers; drop such an auxiliary one (one warning)."""
+    """Refuse a required column that is not finite numbers, or time that does not increase; drop an auxiliary
+    column that is not finite numbers (one warning)."""
     first: tuple[int, str] | None = None
     for name in names:
         bad = np.flatnonzero(wrong[name]) if name in required and name in wrong else ()
@@ -149,15 +156,15 @@ def _validate(path: Path, names: list[str], required: set[str], values: dict[str
         row, name = first
         cells = [c.strip(" \t") for c in cells_of(row)]
         if cells[:len(names)] == names:
-            raise RecordingError(f"{path}: line {numbers[row]} repeats the header (two recordings joined "
+            raise bad_line(path, f"line {numbers[row]} repeats the header (two recordings joined "
                                  "into one file?)")
-        raise RecordingError(f"{path}: line {numbers[row]}: column {name!r}: non-numeric value "
+        raise bad_line(path, f"line {numbers[row]}: column {name!r}: non-numeric value "
                              f"{show(cells[names.index(name)], 40)}")
     for name in (n for n in names if n in required):
         bad = np.flatnonzero(~np.isfinite(values[name]))
         if bad.size:
             what = MISSING if np.isnan(values[name][bad[0]]) else "infinite value"
-            raise RecordingError(f"{path}: line {numbers[bad[0]]}: column {name!r}: {what}"
+            raise bad_line(path, f"line {numbers[bad[0]]}: column {name!r}: {what}"
                                  f" ({bad.size} such cell(s) in this column)")
     dropped: dict[str, str] = {}
     for name in (n for n in names if n not in required):
@@ -171,4 +178,15 @@ def _validate(path: Path, names: list[str], required: set[str], values: dict[str
     if dropped:
         log.warning("%s: auxiliary column(s) dropped, not a finite number in every row: %s", path,
                     "; ".join(f"{n} ({why})" for n, why in dropped.items()))
+    if "time_s" in required:
+        _check_time(path, values["time_s"], numbers)
     return {n: values[n] for n in names if n not in dropped}, dropped
+
+
+def _check_time(path: Path, time_s: np.ndarray, lines: np.ndarray) -> None:
+    """Refuse time that does not increase, naming the line (CONTRACT.md section 1)."""
+    bad = np.flatnonzero(np.diff(time_s) <= 0)
+    if bad.size:
+        row = int(bad[0]) + 1
+        raise bad_line(path, f"line {lines[row]}: time_s {float(time_s[row])!r} does not "
+                             f"increase (previous {float(time_s[row - 1])!r})")

@@ -1,0 +1,92 @@
+"""``bad_lines=drop``: leave out the data lines the loader would refuse one by one, counted by reason.
+
+By default a malformed line refuses the whole file, naming the line (a file is never silently altered);
+``python scripts/convert.py input=F.csv output=G.csv bad_lines=drop`` recovers the good samples instead. Each
+line is judged as the loader judges it: its number of cells, a repeated header, a required cell that is not a
+finite number, then a time that does not increase over the previous line kept. A left-out line is blanked, not
+removed, so that the lines after it keep their numbers; the loader then reads the rest as usual.
+"""
+from __future__ import annotations
+
+import csv
+import logging
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+
+from gyronet.errors import RecordingError
+from gyronet.recordings.csvtable.cells import parse_numbers
+from gyronet.recordings.csvtable.text import field_limit, show
+
+log = logging.getLogger(__name__)
+
+REMEDY = "python scripts/convert.py input={path} output=NEW.csv bad_lines=drop leaves out such lines, counted"
+SHOWN = 5  # left-out lines named in the warning
+
+
+def bad_line(path: Path | str, message: str) -> RecordingError:
+    """A refusal for one malformed line, pointing to the remedy that keeps the rest of the file."""
+    return RecordingError(f"{path}: {message}; {REMEDY.format(path=path)}")
+
+
+def _cells(text: str, delimiter: str) -> list[str]:
+    """One line's cells; quoted cells as the csv module reads them."""
+    if '"' not in text:
+        return text.split(delimiter)
+    with field_limit(len(text)):
+        return next(csv.reader([text], delimiter=delimiter), [])
+
+
+def drop_bad_lines(path: Path, body: bytes, names: list[str], required: Sequence[str], delimiter: str,
+                   decimal: str, first_line: int) -> tuple[bytes, dict[str, int]]:
+    """``body`` (the bytes under the header, ``\\n`` line ends) with every malformed line blanked, and how many
+    were left out by reason; one warning names the first ``SHOWN`` of them.
+
+    ``first_line`` is the file line number of the body's first line.
+    """
+    lines = body.split(b"\n")
+    why: dict[int, tuple[str, str]] = {}  # line index -> (reason key, what the warning says)
+    candidates, rows = [], []
+    for i, raw in enumerate(lines):
+        text = raw.decode("utf-8", "replace")
+        if not text.strip(" \t"):
+            continue
+        cells = _cells(text, delimiter)
+        if len(cells) < len(names) or any(c.strip(" \t") for c in cells[len(names):]):
+            why[i] = ("cell_count", f"{len(cells)} cells where the header names {len(names)} columns")
+        elif [c.strip(" \t") for c in cells[:len(names)]] == names:
+            why[i] = ("repeated_header", "repeats the header")
+        else:
+            candidates.append(i)
+            rows.append(cells)
+    usable = np.ones(len(rows), dtype=bool)
+    time_s = np.zeros(len(rows))
+    for column, name in enumerate(names):
+        if name not in required:
+            continue
+        values, wrong = parse_numbers([r[column] for r in rows], decimal)
+        for k in np.flatnonzero(usable & (wrong | ~np.isfinite(values))):
+            cell = rows[k][column].strip(" \t")
+            key, what = (("non_numeric", f"non-numeric value {show(cell, 40)}") if wrong[k] else
+                         ("missing_value", "missing value") if np.isnan(values[k]) else ("infinite", "infinite value"))
+            why[candidates[k]] = (key, f"column {name!r}: {what}")
+        usable &= ~wrong & np.isfinite(values)
+        if name == "time_s":
+            time_s = values
+    # kept rows increase, so a row is kept exactly when it is later than every usable row before it
+    kept = np.flatnonzero(usable)
+    later = np.maximum.accumulate(time_s[kept])
+    for j in np.flatnonzero(time_s[kept][1:] <= later[:-1]) + 1:
+        why[candidates[kept[j]]] = ("time_not_increasing", f"time_s {float(time_s[kept[j]])!r} does not increase "
+                                    f"(previous kept {float(later[j - 1])!r})")
+    if not why:
+        return body, {}
+    counts: dict[str, int] = {}
+    for i in sorted(why):
+        counts[why[i][0]] = counts.get(why[i][0], 0) + 1
+        lines[i] = b""
+    named = "; ".join(f"line {first_line + i}: {why[i][1]}" for i in sorted(why)[:SHOWN])
+    log.warning("%s: bad_lines=drop: %d malformed line(s) left out (%s): %s%s", path, len(why),
+                ";".join(f"{k}:{v}" for k, v in counts.items()), named, "; ..." if len(why) > SHOWN else "")
+    return b"\n".join(lines), counts
