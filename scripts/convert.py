@@ -3,6 +3,7 @@
 ``format=csv`` (or auto) also reads a spreadsheet's export of the contract's columns: ``;`` or tab
 between cells, decimal commas, UTF-16, trailing commas; the output is the plain comma CSV.
 A ROS bag (``.bag``, ``.db3``, ``.mcap`` or a ROS 2 bag folder) is read with ``rosbag.*`` options.
+``bad_lines=drop`` recovers a contract CSV that has malformed lines: they are left out, counted.
 """
 import sys
 from pathlib import Path
@@ -18,7 +19,7 @@ from _cli import command  # noqa: E402
 @command("convert")
 def main(cfg: DictConfig) -> None:
     options = {name: OmegaConf.to_container(cfg[name], resolve=True) for name in FORMATS if name in cfg}
-    convert_with_options(cfg.input, cfg.output, cfg.format, cfg.sensor, options)
+    convert_with_options(cfg.input, cfg.output, cfg.format, cfg.sensor, options, cfg.bad_lines)
 
 
 if __name__ == "__main__":

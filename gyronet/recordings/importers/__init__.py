@@ -27,7 +27,7 @@ from gyronet.recordings.data import Recording, write_recording
 from gyronet.errors import GyronetError, RecordingError
 from gyronet.recordings.csvtable import other_tool, sniff, split_header
 from gyronet.recordings.importers._common import read_header_line, read_text
-from gyronet.recordings.importers.contract import import_contract
+from gyronet.recordings.importers.contract import BAD_LINES, import_contract
 from gyronet.recordings.importers.lpms import import_lpms
 from gyronet.recordings.importers.psim import import_psim
 from gyronet.recordings.importers.rosbag import import_rosbag, is_rosbag
@@ -138,10 +138,12 @@ def convert(path: str | os.PathLike, output: str | os.PathLike, format: str = "a
 
 def convert_with_options(path: str | os.PathLike, output: str | os.PathLike, format: str = "auto",
                          sensor: str | None = None,
-                         options_by_format: Mapping[str, Mapping[str, object]] | None = None) -> Recording:
+                         options_by_format: Mapping[str, Mapping[str, object]] | None = None,
+                         bad_lines: str = "refuse") -> Recording:
     """``convert`` with the options of every format at hand, as ``conf/convert.yaml`` lists them.
 
-    Only the options of the chosen (or detected) format are passed to its importer.
+    Only the options of the chosen (or detected) format are passed to its importer; ``bad_lines`` (``refuse``
+    or ``drop``) only to the contract CSV's (``import_contract``).
     """
     name = detect_format(path) if format == "auto" else format
     if name not in IMPORTERS:
@@ -149,6 +151,12 @@ def convert_with_options(path: str | os.PathLike, output: str | os.PathLike, for
     options = dict((options_by_format or {}).get(name) or {})
     if sensor is not None:
         options["sensor"] = sensor
+    if bad_lines not in BAD_LINES:
+        raise GyronetError(f"bad_lines={bad_lines!r}: use {' or '.join(BAD_LINES)}")
+    if bad_lines != "refuse":
+        if name != "csv":
+            raise GyronetError(f"bad_lines={bad_lines} is for contract CSVs (format=csv), not format={name}")
+        options["bad_lines"] = bad_lines
     return convert(path, output, name, **options)
 
 
