@@ -45,17 +45,18 @@ def drop_bad_lines(path: Path, body: bytes, names: list[str], required: Sequence
 
     ``first_line`` is the file line number of the body's first line.
     """
-    lines = body.split(b"\n")
+    raw_lines = body.split(b"\n")  # an undecodable byte never becomes a newline: the two splits agree
+    lines = body.decode("utf-8", "replace").split("\n")
     why: dict[int, tuple[str, str]] = {}  # line index -> (reason key, what the warning says)
     candidates, rows = [], []
-    for i, raw in enumerate(lines):
-        text = raw.decode("utf-8", "replace")
+    n = len(names)
+    for i, text in enumerate(lines):
         if not text.strip(" \t"):
             continue
         cells = _cells(text, delimiter)
-        if len(cells) < len(names) or any(c.strip(" \t") for c in cells[len(names):]):
-            why[i] = ("cell_count", f"{len(cells)} cells where the header names {len(names)} columns")
-        elif [c.strip(" \t") for c in cells[:len(names)]] == names:
+        if len(cells) != n and (len(cells) < n or any(c.strip(" \t") for c in cells[n:])):
+            why[i] = ("cell_count", f"{len(cells)} cells where the header names {n} columns")
+        elif cells[0].strip(" \t") == names[0] and [c.strip(" \t") for c in cells[:n]] == names:
             why[i] = ("repeated_header", "repeats the header")
         else:
             candidates.append(i)
@@ -85,8 +86,8 @@ def drop_bad_lines(path: Path, body: bytes, names: list[str], required: Sequence
     counts: dict[str, int] = {}
     for i in sorted(why):
         counts[why[i][0]] = counts.get(why[i][0], 0) + 1
-        lines[i] = b""
+        raw_lines[i] = b""
     named = "; ".join(f"line {first_line + i}: {why[i][1]}" for i in sorted(why)[:SHOWN])
     log.warning("%s: bad_lines=drop: %d malformed line(s) left out (%s): %s%s", path, len(why),
                 ";".join(f"{k}:{v}" for k, v in counts.items()), named, "; ..." if len(why) > SHOWN else "")
-    return b"\n".join(lines), counts
+    return b"\n".join(raw_lines), counts
