@@ -208,3 +208,13 @@ def test_a_spreadsheet_export_with_a_bad_line_is_recovered_too(tmp_path):
     out = convert(path, tmp_path / "out.csv", "csv", bad_lines="drop")
     np.testing.assert_array_equal(out.columns["gyro_x_dps"], [1.25, 1.5])
     assert out.meta["dropped_detail"] == "non_numeric:1"
+
+
+def test_one_stamp_corrupted_far_ahead_costs_only_its_own_line(tmp_path):
+    """Every line after a stamp 1e9 s ahead was 'not increasing' over it, and all of them were left out."""
+    lines = good_lines(50)
+    written = list(lines)
+    written[10] = ",".join(["1e9", *lines[10].split(",")[1:]])
+    recovered = load_recording(write(tmp_path / "damaged.csv", written, meta=""), bad_lines="drop")
+    assert_same(recovered, load_recording(write(tmp_path / "kept.csv", lines[:10] + lines[11:], meta="")))
+    assert recovered.dropped_lines == {"time_not_increasing": 1}

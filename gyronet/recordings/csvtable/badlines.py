@@ -3,11 +3,12 @@
 By default a malformed line refuses the whole file, naming the line (a file is never silently altered);
 ``python scripts/convert.py input=F.csv output=G.csv bad_lines=drop`` recovers the good samples instead. Each
 line is judged as the loader judges it: its number of cells, a repeated header, a required cell that is not a
-finite number, then a time that does not increase over the previous line kept. A left-out line is blanked, not
+finite number, then a time out of order (the fewest such lines are left out). A left-out line is blanked, not
 removed, so that the lines after it keep their numbers; the loader then reads the rest as usual.
 """
 from __future__ import annotations
 
+import bisect
 import csv
 import logging
 from pathlib import Path
@@ -36,6 +37,26 @@ def _cells(text: str, delimiter: str) -> list[str]:
         return text.split(delimiter)
     with field_limit(len(text)):
         return next(csv.reader([text], delimiter=delimiter), [])
+
+
+def _longest_increasing(values: np.ndarray) -> np.ndarray:
+    """Indices of a longest strictly increasing subsequence of ``values`` (patience sorting, O(n log n))."""
+    if len(values) < 2 or np.all(np.diff(values) > 0):
+        return np.arange(len(values))
+    tails: list[float] = []  # the smallest last value of an increasing run of each length
+    tail_at: list[int] = []
+    parent = np.full(len(values), -1)
+    for i, value in enumerate(values.tolist()):
+        k = bisect.bisect_left(tails, value)
+        if k < len(tails) and tails[k] == value:
+            continue  # a repeated time: the earlier row stays
+        tails[k:k + 1], tail_at[k:k + 1] = [value], [i]
+        parent[i] = tail_at[k - 1] if k else -1
+    chain, i = [], tail_at[-1]
+    while i >= 0:
+        chain.append(i)
+        i = parent[i]
+    return np.array(chain[::-1], dtype=int)
 
 
 def drop_bad_lines(path: Path, body: bytes, names: list[str], required: Sequence[str], delimiter: str,
@@ -75,12 +96,13 @@ def drop_bad_lines(path: Path, body: bytes, names: list[str], required: Sequence
         usable &= ~wrong & np.isfinite(values)
         if name == "time_s":
             time_s = values
-    # kept rows increase, so a row is kept exactly when it is later than every usable row before it
+    # the fewest rows left out to put time in order: one stamp corrupted far ahead costs itself, not every row after
     kept = np.flatnonzero(usable)
-    later = np.maximum.accumulate(time_s[kept])
-    for j in np.flatnonzero(time_s[kept][1:] <= later[:-1]) + 1:
-        why[candidates[kept[j]]] = ("time_not_increasing", f"time_s {float(time_s[kept[j]])!r} does not increase "
-                                    f"(previous kept {float(later[j - 1])!r})")
+    in_order = np.zeros(len(kept), dtype=bool)
+    in_order[_longest_increasing(time_s[kept])] = True
+    for j in np.flatnonzero(~in_order):
+        why[candidates[kept[j]]] = ("time_not_increasing", f"time_s {float(time_s[kept[j]])!r} is out of order "
+                                    "with the rows around it")
     if not why:
         return body, {}
     counts: dict[str, int] = {}
