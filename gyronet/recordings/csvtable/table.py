@@ -156,16 +156,15 @@ def _validate(path: Path, names: list[str], required: set[str], values: dict[str
         row, name = first
         cells = [c.strip(" \t") for c in cells_of(row)]
         if cells[:len(names)] == names:
-            raise bad_line(path, f"line {numbers[row]} repeats the header (two recordings joined "
-                                 "into one file?)")
+            raise bad_line(path, f"line {numbers[row]} repeats the header (two recordings joined into one file?)")
         raise bad_line(path, f"line {numbers[row]}: column {name!r}: non-numeric value "
-                             f"{show(cells[names.index(name)], 40)}")
+                       f"{show(cells[names.index(name)], 40)}")
     for name in (n for n in names if n in required):
         bad = np.flatnonzero(~np.isfinite(values[name]))
         if bad.size:
             what = MISSING if np.isnan(values[name][bad[0]]) else "infinite value"
             raise bad_line(path, f"line {numbers[bad[0]]}: column {name!r}: {what}"
-                                 f" ({bad.size} such cell(s) in this column)")
+                           f" ({bad.size} such cell(s) in this column)")
     dropped: dict[str, str] = {}
     for name in (n for n in names if n not in required):
         text = wrong.get(name, np.zeros(len(values[name]), dtype=bool))
@@ -189,4 +188,4 @@ def _check_time(path: Path, time_s: np.ndarray, lines: np.ndarray) -> None:
     if bad.size:
         row = int(bad[0]) + 1
         raise bad_line(path, f"line {lines[row]}: time_s {float(time_s[row])!r} does not "
-                             f"increase (previous {float(time_s[row - 1])!r})")
+                       f"increase (previous {float(time_s[row - 1])!r})")
