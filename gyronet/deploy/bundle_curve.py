@@ -14,8 +14,9 @@ from gyronet.errors import BundleError
 log = logging.getLogger(__name__)
 
 _STEADY = {"temp", "rate", "product", "lag", "power"}  # kinds with a value at steady temperature
-# beyond its edge a clamped curve is flat to rounding (a lag slot's copy moves to the edge in its own units)
-FLAT_DPS = 1e-9
+# beyond its edge a clamped curve is flat to rounding, 1e-16 (a lag slot's copy moves to the edge in its own
+# units); this is far above that and moves the edge found by under 1e-9 degC on a slope of 1e-3 deg/s per degC
+FLAT_DPS = 1e-13
 
 
 def _flat(a: np.ndarray, b: np.ndarray) -> bool:
