@@ -89,8 +89,8 @@ def evidence(spec: Mapping[str, Any], score: float, rmse_after: np.ndarray, inde
             f"the held-out 60 s residual ({held_out}, {result.n_rows} blocks) from {before} to {after} deg/s, "
             f"score {score:.3g} >= {min_gain:g}; against {tested}, the best of all {len(result.names)} candidates "
             f"did as well in {beaten} of {len(result.null_max)} circular time shifts (family-wise p = "
-            f"{result.p_value[index]:.3g} <= {alpha:g}); the network retrained with it confirms it on its own held-out residual (the table "
-            f"below: score {confirmed:.3g} >= {confirm_gain:g}).")
+            f"{result.p_value[index]:.3g} <= {alpha:g}); the network retrained with it confirms it on its own "
+            f"held-out residual (the table below: score {confirmed:.3g} >= {confirm_gain:g}).")
 
 
 def approximation_sentence(spec: Mapping[str, Any], score: float, approximations: Sequence[Mapping[str, Any]]) -> str:
