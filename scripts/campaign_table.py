@@ -32,7 +32,7 @@ def main(cfg: DictConfig) -> None:
         if name == "raw":
             models[name] = None
             continue
-        spec, data_options[name] = _variant(name, cfg.variants)
+        spec, data_options[name] = _variant(name, cfg.get("variants") or {})  # '~variants' leaves none
         models[name] = lambda n_inputs, spec=spec, **more: instantiate(spec, n_inputs=n_inputs, **more)
     table = held_out_table(list(runs), models, float(cfg.startup_s), float(cfg.score_from_s), bool(cfg.run_offsets),
                            OmegaConf.to_container(cfg.train), int(cfg.seed), data_options)
@@ -44,7 +44,7 @@ def main(cfg: DictConfig) -> None:
     log.info("held-out runs:\n%s", markdown)
 
 
-def _variant(name: str, variants: DictConfig) -> tuple[DictConfig, dict]:
+def _variant(name: str, variants: DictConfig | dict) -> tuple[DictConfig, dict]:
     """A model name's spec and data settings: ``conf/model/<name>.yaml``, or a variant's yaml, overrides and ``data``."""
     variant = dict(variants.get(name) or {"model": name})
     data = OmegaConf.to_container(variant.pop("data", None) or OmegaConf.create({}))

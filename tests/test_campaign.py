@@ -145,3 +145,15 @@ def test_the_command_takes_data_paths_as_train_py_does_and_runs_still(paper_csv,
         refused = subprocess.run([sys.executable, "scripts/campaign_table.py", *args,
                                   f"hydra.run.dir={tmp_path / 'refused'}"], cwd=root, capture_output=True, text=True)
         assert refused.returncode == 2 and refused.stderr.strip().splitlines() == [message]
+
+
+def test_the_command_runs_without_variants(paper_csv, cycle_csv, tmp_path):
+    """'~variants' (no variants at all) ended in "Key 'variants' is not in struct" once a model was named."""
+    import subprocess
+
+    done = subprocess.run([sys.executable, "scripts/campaign_table.py", f"data.paths=[{paper_csv},{cycle_csv}]",
+                           "~variants", "models=[poly3]", f"output={tmp_path / 't.md'}", "startup_s=60",
+                           "score_from_s=60", f"hydra.run.dir={tmp_path}"],
+                          cwd=Path(__file__).resolve().parents[1], capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr
+    assert "| poly3 |" in (tmp_path / "t.md").read_text()
