@@ -218,3 +218,18 @@ def test_one_stamp_corrupted_far_ahead_costs_only_its_own_line(tmp_path):
     recovered = load_recording(write(tmp_path / "damaged.csv", written, meta=""), bad_lines="drop")
     assert_same(recovered, load_recording(write(tmp_path / "kept.csv", lines[:10] + lines[11:], meta="")))
     assert recovered.dropped_lines == {"time_not_increasing": 1}
+
+
+def test_a_left_out_line_does_not_hide_a_cut_last_cell(tmp_path):
+    """The cut-cell check looked above the last line before the bad lines were left out: a dropped line's short
+    cells ('1') made '0.3', the cut of '0.3234', look whole, and it was kept as a sample."""
+    names = "time_s,temp_c,gyro_x_dps,gyro_y_dps,gyro_z_dps\n"
+    good = "".join(f"{i / 10:.4f},25.1234,0.1234,0.2234,0.3234\n" for i in range(10))
+    damaged = tmp_path / "damaged.csv"
+    damaged.write_text(names + good + "x,1,1,1,1\n" + "5.0000,25.1234,0.1234,0.2234,0.3")
+    kept = tmp_path / "kept.csv"
+    kept.write_text(names + good + "5.0000,25.1234,0.1234,0.2234,0.3")
+    recovered, want = load_recording(damaged, bad_lines="drop"), load_recording(kept)
+    assert want.cut_rows == 1
+    assert_same(recovered, want)
+    assert recovered.cut_rows == 1 and recovered.dropped_lines == {"non_numeric": 1}

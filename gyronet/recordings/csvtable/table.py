@@ -89,10 +89,10 @@ def parse_table(path: Path, required: Sequence[str], delimiter: str | None = ","
     meta, header_line, header, body_start = read_preamble(raw, path)
     names = split_header(header, delimiter)
     trailing = check_header(path, names, required, delimiter, header)
-    body, cut_rows = drop_cut_last_line(path, raw[body_start:], delimiter, len(names), header_line + 1)
-    dropped_lines: dict[str, int] = {}
-    if bad_lines == "drop":
+    body, dropped_lines = raw[body_start:], {}
+    if bad_lines == "drop":  # first: a left-out line's short cells must not vouch for a cut last cell below them
         body, dropped_lines = drop_bad_lines(path, body, names, required, delimiter, decimal, header_line + 1)
+    body, cut_rows = drop_cut_last_line(path, body, delimiter, len(names), header_line + 1)
     # pandas makes a column of every cell of the first line: a huge one must not get there
     first = re.search(rb"[^ \t\n]", body)
     start = first.start() if first else len(body)
