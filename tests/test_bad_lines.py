@@ -233,3 +233,16 @@ def test_a_left_out_line_does_not_hide_a_cut_last_cell(tmp_path):
     assert want.cut_rows == 1
     assert_same(recovered, want)
     assert recovered.cut_rows == 1 and recovered.dropped_lines == {"non_numeric": 1}
+
+
+def test_a_short_unterminated_last_line_counts_as_cut_either_way(tmp_path):
+    """A write cut off in the last line is dropped as such by default (cut_rows); drop counted it as a cell_count."""
+    lines = good_lines(6)
+    path = tmp_path / "cut.csv"
+    path.write_text(",".join(NAMES) + "\n" + "".join(f"{line}\n" for line in lines) + lines[0][:5])
+    want = load_recording(path)
+    assert want.cut_rows == 1
+    recovered = load_recording(path, bad_lines="drop")
+    assert_same(recovered, want)
+    assert recovered.cut_rows == 1 and recovered.dropped_lines == {}
+    assert convert(path, tmp_path / "out.csv", "csv", bad_lines="drop").meta["dropped_detail"] == "cut_last_line:1"

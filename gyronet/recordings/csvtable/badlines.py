@@ -75,6 +75,8 @@ def drop_bad_lines(path: Path, body: bytes, names: list[str], required: Sequence
         if not text.strip(" \t"):
             continue
         cells = _cells(text, delimiter)
+        if i == len(lines) - 1 and (len(cells) < n or (len(cells) == n and not cells[-1].strip(" \t"))):
+            continue  # an unterminated last line cut short: the loader drops it as such (cut_rows), as by default
         if len(cells) != n and (len(cells) < n or any(c.strip(" \t") for c in cells[n:])):
             why[i] = ("cell_count", f"{len(cells)} cells where the header names {n} columns")
         elif cells[0].strip(" \t") == names[0] and [c.strip(" \t") for c in cells[:n]] == names:
