@@ -246,3 +246,21 @@ def test_a_short_unterminated_last_line_counts_as_cut_either_way(tmp_path):
     assert_same(recovered, want)
     assert recovered.cut_rows == 1 and recovered.dropped_lines == {}
     assert convert(path, tmp_path / "out.csv", "csv", bad_lines="drop").meta["dropped_detail"] == "cut_last_line:1"
+
+
+def test_a_quoted_cell_over_two_lines_is_one_record_either_way(tmp_path):
+    """The filter split a quoted body line by line: a logger's note holding a line end (read whole by default)
+    opened a quote that swallowed every row after it, left out without a count."""
+    names = "time_s,temp_c,gyro_x_dps,gyro_y_dps,gyro_z_dps,note\n"
+    rows = [f"{i / 10},25,0.1,0.2,0.3,ok" for i in range(10)]
+    rows[4] = '0.4,25,0.1,0.2,0.3,"two\nlines"'
+    path = tmp_path / "note.csv"
+    path.write_text(names + "\n".join(rows) + "\n")
+    recovered = load_recording(path, bad_lines="drop")
+    assert_same(recovered, load_recording(path))
+    assert recovered.dropped_lines == {} and len(recovered) == 10
+    rows[4], rows[7] = '0.4,25,abc,0.2,0.3,"two\nlines"', "0.7,25,0.1,0.2,0.3"  # a bad record over two lines
+    path.write_text(names + "\n".join(rows) + "\n")
+    recovered = load_recording(path, bad_lines="drop")
+    np.testing.assert_array_equal(recovered.columns["time_s"], [i / 10 for i in range(10) if i not in (4, 7)])
+    assert recovered.dropped_lines == {"non_numeric": 1, "cell_count": 1}

@@ -10,9 +10,10 @@ from __future__ import annotations
 
 import bisect
 import csv
+import io
 import logging
 from pathlib import Path
-from typing import Sequence
+from typing import Iterator, Sequence
 
 import numpy as np
 
@@ -31,12 +32,22 @@ def bad_line(path: Path | str, message: str) -> RecordingError:
     return RecordingError(f"{path}: {message}; {REMEDY.format(path=path)}")
 
 
-def _cells(text: str, delimiter: str) -> list[str]:
-    """One line's cells; quoted cells as the csv module reads them."""
+def _records(text: str, delimiter: str) -> Iterator[tuple[int, int, list[str]]]:
+    """(index of its first line, of its last, its cells) of each line; with quotes, of each record as the loader
+    reads it (``shape.scan_quoted``): a quoted cell may hold a line end."""
     if '"' not in text:
-        return text.split(delimiter)
+        for i, line in enumerate(text.split("\n")):
+            yield i, i, line.split(delimiter)
+        return
+    reader = csv.reader(io.StringIO(text), delimiter=delimiter, strict=False)
+    start = 0
     with field_limit(len(text)):
-        return next(csv.reader([text], delimiter=delimiter), [])
+        try:
+            for cells in reader:
+                yield start, reader.line_num - 1, cells
+                start = reader.line_num
+        except csv.Error:
+            return  # the loader refuses the file at this line, naming it
 
 
 def _longest_increasing(values: np.ndarray) -> np.ndarray:
@@ -67,15 +78,15 @@ def drop_bad_lines(path: Path, body: bytes, names: list[str], required: Sequence
     ``first_line`` is the file line number of the body's first line.
     """
     raw_lines = body.split(b"\n")  # an undecodable byte never becomes a newline: the two splits agree
-    lines = body.decode("utf-8", "replace").split("\n")
-    why: dict[int, tuple[str, str]] = {}  # line index -> (reason key, what the warning says)
+    why: dict[int, tuple[str, str]] = {}  # first line index -> (reason key, what the warning says)
+    last_of: dict[int, int] = {}  # first line index -> last line index of a record
     candidates, rows = [], []
     n = len(names)
-    for i, text in enumerate(lines):
-        if not text.strip(" \t"):
+    for i, last, cells in _records(body.decode("utf-8", "replace"), delimiter):
+        if not cells or (len(cells) == 1 and not cells[0].strip(" \t")):
             continue
-        cells = _cells(text, delimiter)
-        if i == len(lines) - 1 and (len(cells) < n or (len(cells) == n and not cells[-1].strip(" \t"))):
+        last_of[i] = last
+        if last == len(raw_lines) - 1 and (len(cells) < n or (len(cells) == n and not cells[-1].strip(" \t"))):
             continue  # an unterminated last line cut short: the loader drops it as such (cut_rows), as by default
         if len(cells) != n and (len(cells) < n or any(c.strip(" \t") for c in cells[n:])):
             why[i] = ("cell_count", f"{len(cells)} cells where the header names {n} columns")
@@ -110,7 +121,7 @@ def drop_bad_lines(path: Path, body: bytes, names: list[str], required: Sequence
     counts: dict[str, int] = {}
     for i in sorted(why):
         counts[why[i][0]] = counts.get(why[i][0], 0) + 1
-        raw_lines[i] = b""
+        raw_lines[i:last_of[i] + 1] = [b""] * (last_of[i] + 1 - i)
     named = "; ".join(f"line {first_line + i}: {why[i][1]}" for i in sorted(why)[:SHOWN])
     log.warning("%s: bad_lines=drop: %d malformed line(s) left out (%s): %s%s", path, len(why),
                 ";".join(f"{k}:{v}" for k, v in counts.items()), named, "; ..." if len(why) > SHOWN else "")
