@@ -116,6 +116,9 @@ def test_a_file_in_kelvin_is_refused_and_one_glitch_in_a_hundred_is_not(bundle, 
     glitched.write_text(with_temp(glitches, lambda c: "500"))
     counts = compensate_file(bundle, glitched, tmp_path / "o.csv")
     assert counts["n_bad_input"] == len(glitches)
+    short = tmp_path / "short.csv"  # one glitch in 60 rows (1.7 %): a glitch still, not a file in Kelvin
+    short.write_text("".join(with_temp([header + 30], lambda c: "1e6").splitlines(keepends=True)[:header + 61]))
+    assert compensate_file(bundle, short, tmp_path / "o2.csv")["n_bad_input"] == 1
 
 
 def _run_compensate(*args: str) -> subprocess.CompletedProcess:

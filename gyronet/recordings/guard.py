@@ -39,12 +39,15 @@ CONFIRM_S = 2.0
 GYRO_RANGE_DPS = 1e4  # beyond every MEMS gyro's full scale (+-2000 deg/s typical, 1e4 with margin)
 
 
+GLITCH_SHARE, GLITCH_ROWS = 0.01, 10  # more impossible temperatures than both: Kelvin or a wrong column
+
+
 def check_temperatures(recording) -> None:
-    """Refuse a file whose temperature no sensor reads on more than 1 % of its rows (Kelvin, a wrong column),
-    naming the first line; fewer are glitches this guard leaves out."""
+    """Refuse a file whose temperature no sensor reads on more than 1 % of its rows and more than 10 (Kelvin, a
+    wrong column), naming the first line; fewer are glitches this guard leaves out (one in a short file too)."""
     temp_c, (low, high) = recording.columns["temp_c"], SENSOR_RANGE_C
     bad = np.flatnonzero((temp_c < low) | (temp_c > high))
-    if bad.size > 0.01 * len(temp_c):
+    if bad.size > max(GLITCH_SHARE * len(temp_c), GLITCH_ROWS):
         raise RecordingError(f"{recording.path}: {recording.line_of(int(bad[0]))}: temp_c = {float(temp_c[bad[0]]):.6g}"
                              f" degC is outside any sensor's range ({low:g} .. {high:g}); {bad.size} such sample(s): "
                              "fix or remove those lines")
