@@ -396,3 +396,13 @@ def test_a_bag_or_ulog_given_as_a_recording_is_sent_to_convert(tmp_path):
         with pytest.raises(RecordingError, match=rf"not a recording: convert it first \(python scripts/convert.py "
                                                  rf"input=.*{name} output=F.csv\)"):
             load_recording(tmp_path / name)
+
+
+def test_a_text_column_that_starts_with_nan_is_dropped_not_a_traceback(tmp_path):
+    """'nan' then 'ok' in a logger's status column was a ValueError from pandas (found by test_fuzz_loader)."""
+    path = tmp_path / "notes.csv"
+    path.write_text("time_s,temp_c,gyro_x_dps,gyro_y_dps,gyro_z_dps,vdd_v,notes\n0,20,0,0,0,3.3,nan\n"
+                    "0.1,20,0,0,0,3.3,ok\n0.2,20,0,0,0,3.3,ok\n")
+    recording = load_recording(path)
+    assert "notes" in recording.dropped and "notes" not in recording.columns
+    np.testing.assert_array_equal(recording.columns["vdd_v"], [3.3, 3.3, 3.3])

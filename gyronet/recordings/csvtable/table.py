@@ -74,6 +74,17 @@ def _plainly_clean(frame: pd.DataFrame | None, n_names: int) -> bool:
     return not frame.iloc[:, -1].isna().any()
 
 
+def _frame_values(frame: pd.DataFrame, names: Sequence[str], decimal: str) -> tuple[dict, dict]:
+    """Each column as float64, and for an auxiliary one read as text, which of its cells are not numbers."""
+    values, wrong = {}, {}
+    for i, n in enumerate(names):
+        if frame[i].dtype == object:  # an auxiliary column read as text
+            values[n], wrong[n] = parse_numbers(frame[i].fillna(""), decimal)
+        else:
+            values[n] = frame[i].to_numpy(dtype=np.float64)
+    return values, wrong
+
+
 def parse_table(path: Path, required: Sequence[str], delimiter: str | None = ",",
                 decimal: str | None = ".", bad_lines: str = "refuse") -> Table:
     """Read a recording's table; ``delimiter`` or ``decimal`` None: sniffed (``;``, tab, ``1,5``).
@@ -106,12 +117,7 @@ def parse_table(path: Path, required: Sequence[str], delimiter: str | None = ","
         # a word in an auxiliary column ('OK') sent all 2 M rows down the text path: 22.7 s against 0.8
         frame = _read_fast(body, delimiter, decimal, text=auxiliary)
     if _plainly_clean(frame, len(names)):
-        values = {}
-        for i, n in enumerate(names):
-            if frame[i].dtype == object:  # an auxiliary column read as text
-                values[n], wrong[n] = parse_numbers(frame[i].fillna(""), decimal)
-            else:
-                values[n] = frame[i].to_numpy(dtype=np.float64)
+        values, wrong = _frame_values(frame, names, decimal)
         numbers = header_line + 1 + np.arange(len(frame))
         columns, dropped = _validate(path, names, set(required), values, wrong, numbers,
                                      lambda r: ["" if pd.isna(v) else str(v) for v in frame.iloc[r]])
@@ -130,7 +136,7 @@ def parse_table(path: Path, required: Sequence[str], delimiter: str | None = ","
     elif extra or not keep.all() or lines.blank or frame is None or frame.shape != (rows.size, len(names)):
         frame = _read_fast(body[:int(ends[rows[-1]])], delimiter, decimal, len(names) if extra else None, True)
     if frame is not None and frame.shape == (rows.size, len(names)):
-        values = {n: frame[i].to_numpy(dtype=np.float64) for i, n in enumerate(names)}
+        values, wrong = _frame_values(frame, names, decimal)  # a text column ('nan', then 'ok') stays text
     else:  # the text path: slower, and names the first cell that is not a number
         texts = list(zip(*(lines.cells_of(int(i))[:len(names)] for i in rows)))
         parsed = {n: parse_numbers(t, decimal) for n, t in zip(names, texts)}
