@@ -176,7 +176,8 @@ def train_run(data: DriftData, model: torch.nn.Module, optim: Callable | None, o
     """
     out_dir = Path(out_dir)
     held_out = load_held_out(eval_paths, data.fs_hz)
-    trained = {r.recording.checksum() for r in getattr(data, "runs", None) or []} or {data.recording.checksum()}
+    trained = ({r.recording.checksum() for r in getattr(data, "runs", None) or []} or {data.recording.checksum()}
+               if held_out else set())  # hashed only when there is something to compare
     for path in (p for p, (recording, _) in held_out.items() if recording.checksum() in trained):
         log.warning("eval.paths: %s holds the training data: its figures below are in sample, not held out", path)
     folds = None
