@@ -37,8 +37,6 @@ JUMP_C = 1.5
 CONFIRM_SAMPLES = 5
 CONFIRM_S = 2.0
 GYRO_RANGE_DPS = 1e4  # beyond every MEMS gyro's full scale (+-2000 deg/s typical, 1e4 with margin)
-
-
 GLITCH_SHARE, GLITCH_ROWS = 0.01, 10  # more impossible temperatures than both: Kelvin or a wrong column
 
 
@@ -48,9 +46,9 @@ def check_temperatures(recording) -> None:
     temp_c, (low, high) = recording.columns["temp_c"], SENSOR_RANGE_C
     bad = np.flatnonzero((temp_c < low) | (temp_c > high))
     if bad.size > max(GLITCH_SHARE * len(temp_c), GLITCH_ROWS):
-        raise RecordingError(f"{recording.path}: {recording.line_of(int(bad[0]))}: temp_c = {float(temp_c[bad[0]]):.6g}"
-                             f" degC is outside any sensor's range ({low:g} .. {high:g}); {bad.size} such sample(s): "
-                             "fix or remove those lines")
+        raise RecordingError(f"{recording.path}: {recording.line_of(int(bad[0]))}: temp_c = "
+                             f"{float(temp_c[bad[0]]):.6g} degC is outside any sensor's range ({low:g} .. {high:g}); "
+                             f"{bad.size} such sample(s): fix or remove those lines")
 
 
 def bad_gyro(gyro_dps: np.ndarray) -> np.ndarray:

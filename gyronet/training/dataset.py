@@ -92,8 +92,8 @@ def clear_caches() -> None:
 
 
 def check_physical(recording: Recording) -> None:
-    """Refuse a recording with a rate no real sensor gives (a corrupt line), or a temperature no sensor reads on
-    more than 1 % of its rows and 10 (Kelvin, a wrong column), naming the line; fewer are glitches the guard leaves out."""
+    """Refuse a recording with a rate no real sensor gives (a corrupt line), or too many temperatures no sensor
+    reads (Kelvin, a wrong column: ``guard.check_temperatures``), naming the line."""
     for name in GYRO_COLUMNS:
         values = recording.columns[name]
         bad = np.flatnonzero(np.abs(values) > RATE_LIMIT_DPS)
