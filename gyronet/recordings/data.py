@@ -267,16 +267,21 @@ def fold_count(val_fraction: float) -> int:
     return max(2, int(round(1.0 / val_fraction)))
 
 
+def held_out_span(val_fraction: float, fold: int | None = None) -> tuple[int, int]:
+    """``split_by_time``'s rule: span s is held out when ``s % k == which``; (k, which)."""
+    k = fold_count(val_fraction)
+    return k, k // 2 if fold is None else fold % k
+
+
 def split_by_time(time_s: np.ndarray, val_fraction: float = 0.2, n_blocks: int = 10,
                   fold: int | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Train and validation masks from contiguous time blocks, never random samples.
 
     The record is cut into ``n_blocks`` equal spans of recorded time (a break longer than
     ``BREAK_FACTOR`` sample intervals counts as one interval, so that no span falls in a break and
-    comes out empty) and every k-th span (k = 1 /
-    ``val_fraction``), starting with span ``fold`` (default: the centre offset, k // 2), is held
-    out, so that validation covers the whole temperature history; folds 0 .. k-1 together hold
-    out every span once (cross-validation).
+    comes out empty) and every k-th span (k = 1 / ``val_fraction``), starting with span ``fold``
+    (default: the centre offset, k // 2; ``held_out_span``), is held out, so that validation covers
+    the whole temperature history; folds 0 .. k-1 together hold out every span once.
 
     Returns
     -------
@@ -290,6 +295,6 @@ def split_by_time(time_s: np.ndarray, val_fraction: float = 0.2, n_blocks: int =
         return np.ones(len(time_s), dtype=bool), np.zeros(len(time_s), dtype=bool)
     span_s = recorded_s[-1] / n_blocks * (1 + 1e-12)
     block = np.floor(recorded_s / span_s).astype(np.int64)
-    step = fold_count(val_fraction)
-    val = (block % step) == (step // 2 if fold is None else fold % step)
+    step, which = held_out_span(val_fraction, fold)
+    val = (block % step) == which
     return ~val, val

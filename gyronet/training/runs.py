@@ -22,7 +22,7 @@ from torch import nn
 
 from gyronet.errors import ConfigError, GyronetError
 from gyronet.model.features import PAPER_FEATURES
-from gyronet.recordings.data import AXES, fold_count
+from gyronet.recordings.data import AXES, held_out_span
 from gyronet.training.capacity import MIN_IN_BOX_S, inside_box
 from gyronet.training.dataset import MIN_TRAIN_BLOCKS, DriftData, TrainingData
 from gyronet.training.run_data import Run, RunBlocks, check_long_enough, load_runs, scored_after_startup, run_name, stack_runs
@@ -110,8 +110,8 @@ def _say_held_out_share(val_fraction: float, n_blocks: int, val_fold: int | None
     """Refuse a split that holds out nothing or everything; say the share held out when it is not ``val_fraction``."""
     if not 0.0 < val_fraction < 1.0:
         raise ConfigError(f"data.val_fraction must be in (0, 1), got {val_fraction}")
-    k = fold_count(val_fraction)
-    held = sum(1 for span in range(n_blocks) if span % k == (k // 2 if val_fold is None else val_fold % k))
+    k, which = held_out_span(val_fraction, val_fold)
+    held = sum(1 for span in range(n_blocks) if span % k == which)
     if not 0 < held < n_blocks:  # was refused as "too short to train on", which the recording was not
         raise ConfigError(f"data.n_blocks={n_blocks} with data.val_fraction={val_fraction:g} (one span in {k} held out) "
                           f"leaves {'no span to validate on' if held == 0 else 'no span to train on'}")
